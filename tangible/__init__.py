@@ -1,0 +1,1 @@
+"""The modular puppet device: protocol, serial reader, rig reduction (arrives with the device issue)."""
