@@ -1,0 +1,748 @@
+"""Exact polyhedral geodesics by window propagation (Chen and Han; Xin and Wang's improvements, "ICH").
+
+A *window* is an interval of an edge through which a family of straight (unfolded) geodesics enters a
+face from a *pseudosource*: the source point itself, or a saddle or boundary vertex around which
+shortest paths bend. It stores the pseudosource's image unfolded into the face's frame, the distance
+``sigma`` from the source to the pseudosource, and the rotation from the pseudosource's frame to this
+face's, so every query returns the exact distance **and** the exact initial and final directions.
+
+Windows are propagated in bands of increasing distance (delta-stepping), a whole band at a time with
+numpy. Exactness does not depend on the processing order: every pruning rule below discards a window
+only when a real, strictly shorter path exists everywhere that window could reach.
+
+* Rules 1 and 2 (ICH): an edge endpoint reaches the window's far end more cheaply along the edge. Along
+  the edge, (window distance) - (distance via the endpoint) is monotone, so the far end decides.
+* Rule 3 (ICH, made exact): the face's third vertex beats the window on the whole interval. We take the
+  exact minimum over the interval (the difference of two distances to points on either side of a line
+  has at most one interior minimum, found by reflecting the vertex), where ICH checks one endpoint.
+* One angle, one split (ICH): of the windows that see a vertex through the same edge, only the one
+  giving the vertex its shortest distance keeps the children on both sides; a worse one keeps only the
+  child on the side away from the better path (its other rays would have to cross a shorter path).
+
+A query point's distance is the minimum over the windows entering its face (and the direct segments
+from pseudosources in that face); the path is recovered by walking back through parent windows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from .errors import GeodesicError, describe_ids
+from .mesh import TriMesh
+from .points import SurfacePoints
+from .tangent import corner_halfedges, face_to_vertex, from_face_frame
+
+#: Relative margin by which a path must be shorter for a rule to discard a window.
+PRUNE_MARGIN = 1e-10
+#: Slack, in edge-parameter units, when deciding whether a ray passes through a window.
+RAY_SLACK = 1e-9
+#: Children narrower than this (edge-parameter units) carry no rays the neighbours do not.
+MIN_WIDTH = 1e-12
+#: Processing band, in mean edge lengths.
+BAND = 3.0
+
+
+def _cross(a, b):
+    return (np.conj(a) * b).imag
+
+
+class _Windows:
+    """Growable struct-of-arrays holding every window ever created."""
+
+    FIELDS: ClassVar[dict[str, type]] = {
+        "he": np.int64,  # halfedge the window lies on; its rays enter face(he)
+        "u0": np.float64,  # interval along he, 0 at its tail, 1 at its head
+        "u1": np.float64,
+        "img": np.complex128,  # pseudosource image in face(he)'s frame
+        "sigma": np.float64,  # distance from the source to the pseudosource
+        "ps": np.int64,  # pseudosource vertex, or -1 for the source point
+        "birth": np.int64,  # the pseudosource's birth count when this window was made
+        "rot": np.complex128,  # direction in face(he) frame = rot * direction in the pseudosource frame
+        "corner": np.int64,  # pseudosource frame: face(corner)'s, at vertex tail(corner); -1: source face
+        "label": np.int64,  # which source
+        "parent": np.int64,  # window this one was propagated from; -1 if it starts at its pseudosource
+        "direct": np.bool_,  # a segment from the pseudosource inside its own face, not an edge window
+    }
+
+    def __init__(self, capacity: int = 1024):
+        self.size = 0
+        self.data = {k: np.empty(capacity, t) for k, t in self.FIELDS.items()}
+
+    def append(self, **cols) -> np.ndarray:
+        n = len(cols["he"])
+        need = self.size + n
+        if need > len(self.data["he"]):
+            cap = max(need, 2 * len(self.data["he"]))
+            for k, a in self.data.items():
+                grown = np.empty(cap, a.dtype)
+                grown[: self.size] = a[: self.size]
+                self.data[k] = grown
+        for k in self.FIELDS:
+            self.data[k][self.size : need] = cols[k]
+        idx = np.arange(self.size, need)
+        self.size = need
+        return idx
+
+    def __getattr__(self, name):
+        data = self.__dict__.get("data")
+        if data is not None and name in data:
+            return data[name][: self.size]
+        raise AttributeError(name)
+
+
+@dataclass(frozen=True, eq=False)
+class GeodesicQuery:
+    """Exact geodesics from the nearest source to each query point.
+
+    Attributes
+    ----------
+    distances : (k,) float
+        Geodesic distance (inf where unreached, e.g. beyond ``max_distance``).
+    sources : (k,) int
+        Index of the nearest source.
+    initial_directions : (k,) complex
+        Unit direction of the geodesic as it leaves its source, in the source's tangent basis
+        (0 where the point is the source).
+    final_directions : (k,) complex
+        Unit direction of travel as the geodesic arrives, in the query point's tangent basis.
+    """
+
+    distances: np.ndarray
+    sources: np.ndarray
+    initial_directions: np.ndarray
+    final_directions: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class Path:
+    """One exact shortest geodesic.
+
+    Attributes
+    ----------
+    length : float
+    initial_direction : complex
+        Unit direction at the start, in the start point's tangent basis.
+    final_direction : complex
+        Unit direction of travel at the end, in the end point's tangent basis.
+    polyline : (N, 3) float
+        Positions from start to end: start, every edge crossing, every vertex it bends around, end.
+    points : SurfacePoints
+        The same N points as surface points (crossings lie on edges, bends on vertices).
+    segment_directions : (s, 2) complex
+        For each straight segment between bends: its initial direction (start point's basis) and its
+        final direction (end point's basis). Used for parallel transport.
+    """
+
+    length: float
+    initial_direction: complex
+    final_direction: complex
+    polyline: np.ndarray
+    points: SurfacePoints
+    segment_directions: np.ndarray
+
+    @property
+    def bends(self) -> int:
+        """How many saddle or boundary vertices the path bends around."""
+        return len(self.segment_directions) - 1
+
+
+class GeodesicField:
+    """Exact geodesic distances and paths from one or more source points.
+
+    Propagation stops as soon as every point in ``targets`` is settled (or at ``max_distance``);
+    without targets it covers the sources' components. Queries then cost one vectorized pass.
+
+    Parameters
+    ----------
+    mesh : TriMesh
+    sources : SurfacePoints
+        Any points: inside faces, on edges or on vertices.
+    targets : SurfacePoints, optional
+        Points that later queries will ask about; lets propagation stop early.
+    max_distance : float, optional
+        Do not propagate beyond this distance.
+    """
+
+    def __init__(
+        self,
+        mesh: TriMesh,
+        sources: SurfacePoints,
+        targets: SurfacePoints | None = None,
+        max_distance: float = np.inf,
+    ):
+        if len(sources) == 0:
+            raise GeodesicError("no source points were given")
+        self.mesh = mesh
+        self.sources = sources.validate(mesh)
+        self.targets = targets.validate(mesh) if targets is not None else None
+        self.max_distance = float(max_distance)
+        if targets is not None and len(targets):
+            reached = np.isin(mesh.face_components[targets.faces], mesh.face_components[sources.faces])
+            bad = np.flatnonzero(~reached)
+            if bad.size:
+                raise GeodesicError(
+                    f"target points {describe_ids(bad)} lie on a connected component that holds no source "
+                    f"(mesh component {int(mesh.face_components[targets.faces[bad[0]]])}), "
+                    "so no geodesic reaches them"
+                )
+        n = mesh.n_vertices
+        self.W = _Windows()
+        self.vertex_distance = np.full(n, np.inf)
+        self.vertex_parent = np.full(n, -1, np.int64)
+        self._birth = np.zeros(n, np.int64)
+        self._split_d = np.full(3 * mesh.n_faces, np.inf)
+        self._split_u = np.zeros(3 * mesh.n_faces)
+        theta = mesh.angle_sums
+        self._bends = np.where(
+            mesh.is_boundary_vertex, theta > np.pi * (1 + 1e-9), theta > 2 * np.pi * (1 + 1e-9)
+        )
+        self._pending = np.empty(0, np.int64)
+        self._pending_key = np.empty(0)
+        self._ps = np.empty(0, np.int64)
+        self._ps_birth = np.empty(0, np.int64)
+        self._seed_sources()
+        self._propagate()
+        self._by_face = None
+
+    # ------------------------------------------------------------------ sources
+
+    def _seed_sources(self) -> None:
+        mesh, src = self.mesh, self.sources
+        P = mesh.face_points
+        z0 = src.in_face_frame(mesh)
+        v = src.vertex_ids(mesh)
+        e = src.edge_halfedges(mesh)
+        # Root faces of every source, with the source's position in that face and the frame rotation.
+        label, face, pos, rot, corner = [], [], [], [], []
+        for kind in ("face", "edge", "vertex"):
+            if kind == "face":
+                s = np.flatnonzero((v < 0) & (e < 0))
+                label.append(s), face.append(src.faces[s]), pos.append(z0[s])
+                rot.append(np.ones(s.size, complex)), corner.append(np.full(s.size, -1))
+            elif kind == "edge":
+                s = np.flatnonzero(e >= 0)
+                label.append(s), face.append(src.faces[s]), pos.append(z0[s])
+                rot.append(np.ones(s.size, complex)), corner.append(np.full(s.size, -1))
+                t = mesh.twin[e[s]]
+                s2 = s[t >= 0]
+                h = e[s2]
+                (
+                    label.append(s2),
+                    face.append(mesh.twin[h] // 3),
+                    pos.append(mesh.halfedge_offset[h] + mesh.halfedge_rotation[h] * z0[s2]),
+                )
+                rot.append(mesh.halfedge_rotation[h]), corner.append(np.full(s2.size, -1))
+            else:
+                s = np.flatnonzero(v >= 0)
+                counts = mesh.ring_start[v[s] + 1] - mesh.ring_start[v[s]]
+                h = mesh.ring[_ranges(mesh.ring_start[v[s]], counts)]
+                label.append(np.repeat(s, counts)), face.append(h // 3), pos.append(P[h // 3, h % 3])
+                rot.append(np.ones(h.size, complex)), corner.append(h)
+        label, face, pos, rot, corner = (np.concatenate(x) for x in (label, face, pos, rot, corner))
+        r = face.size
+        direct = self.W.append(
+            he=np.where(corner >= 0, corner, 3 * face),
+            u0=np.zeros(r),
+            u1=np.ones(r),
+            img=pos,
+            sigma=np.zeros(r),
+            ps=np.full(r, -1),
+            birth=np.zeros(r, np.int64),
+            rot=rot,
+            corner=corner,
+            label=label,
+            parent=np.full(r, -1),
+            direct=np.ones(r, bool),
+        )
+        # Vertices of root faces are reached by straight segments inside those faces.
+        self._relax(mesh.faces[face].ravel(), np.abs(P[face] - pos[:, None]).ravel(), np.repeat(direct, 3))
+        # Windows on the far side of each root face edge that does not hold the source.
+        h = 3 * face[:, None] + np.arange(3)
+        on_edge = np.zeros(h.shape, bool)
+        se, sv = e[label], v[label]
+        on_edge |= (h == se[:, None]) | (h == np.where(se >= 0, mesh.twin[np.maximum(se, 0)], -2)[:, None])
+        on_edge |= (mesh.halfedge_tail[h] == sv[:, None]) | (mesh.halfedge_head[h] == sv[:, None])
+        ok = ~on_edge & (mesh.twin[h] >= 0)
+        row, col = np.nonzero(ok)
+        hh = h[row, col]
+        self._add_windows(
+            he=mesh.twin[hh],
+            u0=np.zeros(hh.size),
+            u1=np.ones(hh.size),
+            img=mesh.halfedge_offset[hh] + mesh.halfedge_rotation[hh] * pos[row],
+            sigma=np.zeros(hh.size),
+            ps=np.full(hh.size, -1),
+            birth=np.zeros(hh.size, np.int64),
+            rot=rot[row] * mesh.halfedge_rotation[hh],
+            corner=corner[row],
+            label=label[row],
+            parent=direct[row],
+            direct=np.zeros(hh.size, bool),
+        )
+
+    # ------------------------------------------------------------------ propagation
+
+    def _propagate(self) -> None:
+        band = BAND * self.mesh.mean_edge_length
+        while True:
+            fresh = self._ps_birth == self._birth[self._ps]
+            self._ps, self._ps_birth = self._ps[fresh], self._ps_birth[fresh]
+            ps_key = self.vertex_distance[self._ps]
+            low = min(self._pending_key.min(initial=np.inf), ps_key.min(initial=np.inf))
+            if not np.isfinite(low) or low >= min(self._stop_bound(), self.max_distance):
+                break
+            cut = low + band
+            take = ps_key < cut
+            if np.any(take):
+                verts = self._ps[take]
+                self._ps, self._ps_birth = self._ps[~take], self._ps_birth[~take]
+                self._emit_pseudosources(verts)
+            take = self._pending_key < cut
+            batch = self._pending[take]
+            self._pending, self._pending_key = self._pending[~take], self._pending_key[~take]
+            ps = self.W.ps[batch]
+            live = (ps < 0) | (self.W.birth[batch] == self._birth[np.maximum(ps, 0)])
+            batch = batch[live]
+            if batch.size:
+                self._propagate_batch(batch)
+
+    def _stop_bound(self) -> float:
+        """An upper bound on every target's distance (inf until each target's face is reached)."""
+        if self.targets is None:
+            return np.inf
+        mesh, t = self.mesh, self.targets
+        if len(t) == 0:
+            return 0.0
+        d = self.vertex_distance[mesh.faces[t.faces]]
+        gap = np.abs(mesh.face_points[t.faces] - t.in_face_frame(mesh)[:, None])
+        return float(np.max(np.min(d + gap, axis=1)))
+
+    def _propagate_batch(self, w: np.ndarray) -> None:
+        mesh, W = self.mesh, self.W
+        Pf = mesh.face_points.ravel()
+        he = W.he[w]
+        hn, hp = mesh.halfedge_next[he], mesh.halfedge_prev[he]
+        A, B, C = Pf[he], Pf[hn], Pf[hp]
+        I, sig, u0, u1 = W.img[w], W.sigma[w], W.u0[w], W.u1[w]
+        AB = B - A
+        IC = C - I
+        uc = _cross(IC, I - A) / _cross(IC, AB)  # where the ray through the opposite vertex crosses AB
+        dc = sig + np.abs(IC)
+        opposite = mesh.halfedge_tail[hp]
+
+        sees_c = (uc >= u0 - RAY_SLACK) & (uc <= u1 + RAY_SLACK)
+        self._relax(opposite[sees_c], dc[sees_c], w[sees_c])
+
+        # One angle, one split.
+        keep_left = uc > u0 + MIN_WIDTH
+        keep_right = uc < u1 - MIN_WIDTH
+        split = np.flatnonzero(keep_left & keep_right)
+        if split.size:
+            hs, ds, us = he[split], dc[split], uc[split]
+            order = np.lexsort((ds, hs))
+            first = order[np.r_[True, hs[order][1:] != hs[order][:-1]]]
+            better = ds[first] < self._split_d[hs[first]]
+            self._split_d[hs[first[better]]] = ds[first[better]]
+            self._split_u[hs[first[better]]] = us[first[better]]
+            best_d, best_u = self._split_d[hs], self._split_u[hs]
+            worse = ds > best_d * (1 + PRUNE_MARGIN)
+            keep_right[split[worse & (us < best_u - RAY_SLACK)]] = False
+            keep_left[split[worse & (us > best_u + RAY_SLACK)]] = False
+
+        children = []
+        for side, keep in (("left", keep_left), ("right", keep_right)):
+            s = np.flatnonzero(keep)
+            if s.size == 0:
+                continue
+            if side == "left":  # rays between u0 and uc leave through edge C -> A
+                h_out = hp[s]
+                X_near = A[s] + u0[s] * AB[s]
+                X_far = A[s] + np.minimum(u1[s], uc[s]) * AB[s]
+                t_near = _hit(I[s], X_near, C[s], A[s])
+                t_far = np.where(uc[s] < u1[s], 0.0, _hit(I[s], X_far, C[s], A[s]))
+                s0, s1 = 1 - t_near, 1 - t_far
+            else:  # rays between uc and u1 leave through edge B -> C
+                h_out = hn[s]
+                X_near = A[s] + np.maximum(u0[s], uc[s]) * AB[s]
+                X_far = A[s] + u1[s] * AB[s]
+                t_near = np.where(uc[s] > u0[s], 1.0, _hit(I[s], X_near, B[s], C[s]))
+                t_far = _hit(I[s], X_far, B[s], C[s])
+                s0, s1 = 1 - t_near, 1 - t_far
+            tw = mesh.twin[h_out]
+            ok = (tw >= 0) & (s1 - s0 > MIN_WIDTH)
+            s, h_out, s0, s1 = s[ok], h_out[ok], s0[ok], s1[ok]
+            ws = w[s]
+            children.append(
+                dict(
+                    he=mesh.twin[h_out],
+                    u0=s0,
+                    u1=s1,
+                    img=mesh.halfedge_offset[h_out] + mesh.halfedge_rotation[h_out] * I[s],
+                    sigma=sig[s],
+                    ps=W.ps[ws],
+                    birth=W.birth[ws],
+                    rot=W.rot[ws] * mesh.halfedge_rotation[h_out],
+                    corner=W.corner[ws],
+                    label=W.label[ws],
+                    parent=ws,
+                    direct=np.zeros(s.size, bool),
+                )
+            )
+        if children:
+            self._add_windows(**{key: np.concatenate([c[key] for c in children]) for key in children[0]})
+
+    def _add_windows(self, **cols) -> None:
+        """Drop new edge windows that a strictly shorter path beats everywhere (rules 1-3); queue the rest."""
+        mesh = self.mesh
+        Pf, tail = mesh.face_points.ravel(), mesh.halfedge_tail
+        he, u0, u1, I, sig = cols["he"], cols["u0"], cols["u1"], cols["img"], cols["sigma"]
+        hn, hp = mesh.halfedge_next[he], mesh.halfedge_prev[he]
+        Q1, Q3 = Pf[he], Pf[hp]
+        E = Pf[hn] - Q1
+        length = np.abs(E)
+        vd = self.vertex_distance
+        d1, d2, d3 = vd[tail[he]], vd[tail[hn]], vd[tail[hp]]
+        Xa, Xb = Q1 + u0 * E, Q1 + u1 * E
+        wa, wb = sig + np.abs(I - Xa), sig + np.abs(I - Xb)
+        grow = 1 + PRUNE_MARGIN
+        # Rules 1 and 2: an edge endpoint reaches the far end of the interval along the edge.
+        dead = (wb > (d1 + u1 * length) * grow) | (wa > (d2 + (1 - u0) * length) * grow)
+        # Rule 3: exact minimum over the interval of (window distance) - (distance via the third vertex).
+        # Along the edge it has one interior extremum, where the line from the image to the vertex's
+        # mirror image (across the edge) crosses it.
+        e = E / length
+        Il = (I - Q1) / e
+        R = np.conj((Q3 - Q1) / e)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xs = (Il.real - (R.real - Il.real) * Il.imag / (R.imag - Il.imag)) / length
+        us = np.clip(np.where(np.isfinite(xs), xs, u0), u0, u1)
+        Xs = Q1 + us * E
+        gap = np.minimum(wa - (d3 + np.abs(Q3 - Xa)) * grow, wb - (d3 + np.abs(Q3 - Xb)) * grow)
+        gap = np.minimum(gap, sig + np.abs(I - Xs) - (d3 + np.abs(Q3 - Xs)) * grow)
+        keep = ~(dead | (gap > 0))
+        if not np.any(keep):
+            return
+        kept = {key: val[keep] for key, val in cols.items()}
+        idx = self.W.append(**kept)
+        # Lower bound on any distance this window's rays can give: sigma + distance to the interval.
+        Il, length, I = Il[keep], length[keep], I[keep]
+        proj = np.clip(Il.real / length, kept["u0"], kept["u1"])
+        key = kept["sigma"] + np.abs(I - (Q1[keep] + proj * E[keep]))
+        self._pending = np.concatenate([self._pending, idx])
+        self._pending_key = np.concatenate([self._pending_key, key])
+
+    def _relax(self, vertices: np.ndarray, dist: np.ndarray, parent: np.ndarray) -> None:
+        """Lower vertex distances where a candidate is shorter; queue bending vertices as pseudosources."""
+        if vertices.size == 0:
+            return
+        order = np.lexsort((dist, vertices))
+        first = order[np.r_[True, vertices[order][1:] != vertices[order][:-1]]]
+        v, d, p = vertices[first], dist[first], parent[first]
+        better = d < self.vertex_distance[v] * (1 - 1e-14)
+        v, d, p = v[better], d[better], p[better]
+        if v.size == 0:
+            return
+        self.vertex_distance[v] = d
+        self.vertex_parent[v] = p
+        self._birth[v] += 1
+        bends = v[self._bends[v]]
+        self._ps = np.concatenate([self._ps, bends])
+        self._ps_birth = np.concatenate([self._ps_birth, self._birth[bends]])
+
+    def _emit_pseudosources(self, verts: np.ndarray) -> None:
+        """Start windows from saddle/boundary vertices into the faces of their shadow cones."""
+        mesh, W = self.mesh, self.W
+        P = mesh.face_points
+        parent = self.vertex_parent[verts]
+        fp = W.he[parent] // 3
+        corner_in = corner_halfedges(mesh, fp, verts)
+        here = P[fp, corner_in % 3]
+        back = W.img[parent] - here  # towards where the geodesic came from
+        theta = mesh.angle_sums[verts]
+        boundary = mesh.is_boundary_vertex[verts]
+        e_in = P[fp, (corner_in % 3 + 1) % 3] - here
+        a_back = mesh.halfedge_angle[corner_in] + np.angle(back / e_in)
+        a_back = np.where(boundary, a_back, np.mod(a_back, theta))
+        counts = mesh.ring_start[verts + 1] - mesh.ring_start[verts]
+        h = mesh.ring[_ranges(mesh.ring_start[verts], counts)]
+        u = np.repeat(verts, counts)
+        ab, th, bd = np.repeat(a_back, counts), np.repeat(theta, counts), np.repeat(boundary, counts)
+        lo = mesh.halfedge_angle[h]
+        hi = lo + mesh.corner_angles.ravel()[h]
+        slack = 1e-9
+        # Interior saddle: directions at least π from the way in on both sides, [ab+π, ab+θ-π] (mod θ).
+        start = np.mod(ab + np.pi - slack, th)
+        width = th - 2 * np.pi + 2 * slack
+        inside = (np.mod(lo - start, th) <= width) | (np.mod(start - lo, th) <= hi - lo)
+        # Boundary vertex: [0, ab-π] and [ab+π, θ].
+        on_boundary = (lo <= ab - np.pi + slack) | (hi >= ab + np.pi - slack)
+        sel = np.where(bd, on_boundary, inside)
+        h, u = h[sel], u[sel]
+        if h.size == 0:
+            return
+        f, k = h // 3, h % 3
+        pu = P[f, k]
+        sigma = self.vertex_distance[u]
+        label = W.label[self.vertex_parent[u]]
+        birth = self._birth[u]
+        r = h.size
+        direct = W.append(
+            he=h,
+            u0=np.zeros(r),
+            u1=np.ones(r),
+            img=pu,
+            sigma=sigma,
+            ps=u,
+            birth=birth,
+            rot=np.ones(r, complex),
+            corner=h,
+            label=label,
+            parent=np.full(r, -1),
+            direct=np.ones(r, bool),
+        )
+        others = np.stack([mesh.faces[f, (k + 1) % 3], mesh.faces[f, (k + 2) % 3]], 1)
+        dist = sigma[:, None] + np.abs(np.stack([P[f, (k + 1) % 3], P[f, (k + 2) % 3]], 1) - pu[:, None])
+        self._relax(others.ravel(), dist.ravel(), np.repeat(direct, 2))
+        opp = 3 * f + (k + 1) % 3
+        ok = mesh.twin[opp] >= 0
+        opp = opp[ok]
+        n = opp.size
+        self._add_windows(
+            he=mesh.twin[opp],
+            u0=np.zeros(n),
+            u1=np.ones(n),
+            img=mesh.halfedge_offset[opp] + mesh.halfedge_rotation[opp] * pu[ok],
+            sigma=sigma[ok],
+            ps=u[ok],
+            birth=birth[ok],
+            rot=mesh.halfedge_rotation[opp],
+            corner=h[ok],
+            label=label[ok],
+            parent=direct[ok],
+            direct=np.zeros(n, bool),
+        )
+
+    # ------------------------------------------------------------------ queries
+
+    def _windows_by_face(self):
+        if self._by_face is None or self._by_face[2] != self.W.size:
+            face = self.W.he // 3
+            order = np.argsort(face, kind="stable")
+            start = np.searchsorted(face[order], np.arange(self.mesh.n_faces + 1))
+            self._by_face = (order, start, self.W.size)
+        return self._by_face[:2]
+
+    def _best_windows(self, faces: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For points z in the frames of ``faces``: the best window entering each face and its distance."""
+        order, start = self._windows_by_face()
+        counts = start[faces + 1] - start[faces]
+        entry = np.repeat(np.arange(faces.size), counts)
+        w = order[_ranges(start[faces], counts)]
+        W = self.W
+        p = z[entry]
+        I = W.img[w]
+        value = W.sigma[w] + np.abs(p - I)
+        he = W.he[w]
+        P = self.mesh.face_points
+        f, k = he // 3, he % 3
+        A, B = P[f, k], P[f, (k + 1) % 3]
+        d = p - I
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = _cross(d, I - A) / _cross(d, B - A)
+        through = (u >= W.u0[w] - RAY_SLACK) & (u <= W.u1[w] + RAY_SLACK)
+        value = np.where(W.direct[w] | through, value, np.inf)
+        best = np.full(faces.size, -1, np.int64)
+        dist = np.full(faces.size, np.inf)
+        if value.size:
+            o = np.lexsort((value, entry))
+            first = o[np.r_[True, entry[o][1:] != entry[o][:-1]]]
+            best[entry[first]] = w[first]
+            dist[entry[first]] = value[first]
+        best[~np.isfinite(dist)] = -1
+        return best, dist
+
+    def query(self, points: SurfacePoints) -> GeodesicQuery:
+        """Distances, nearest sources and directions at the given points."""
+        mesh, W = self.mesh, self.W
+        points.validate(mesh)
+        k = len(points)
+        v = points.vertex_ids(mesh)
+        e = points.edge_halfedges(mesh)
+        z = points.in_face_frame(mesh)
+        best = np.full(k, -1, np.int64)
+        dist = np.full(k, np.inf)
+        at = v >= 0
+        best[at], dist[at] = self.vertex_parent[v[at]], self.vertex_distance[v[at]]
+        rest = np.flatnonzero(~at)
+        best[rest], dist[rest] = self._best_windows(points.faces[rest], z[rest])
+        # A point on an edge is also reached from the other face of that edge.
+        other = rest[(e[rest] >= 0) & (mesh.twin[np.maximum(e[rest], 0)] >= 0)]
+        h = e[other]
+        b2, d2 = self._best_windows(
+            mesh.twin[h] // 3, mesh.halfedge_offset[h] + mesh.halfedge_rotation[h] * z[other]
+        )
+        better = d2 < dist[other]
+        best[other[better]], dist[other[better]] = b2[better], d2[better]
+        # Each point in the frame of its best window's face.
+        reached = best >= 0
+        wf = np.where(reached, W.he[np.maximum(best, 0)] // 3, points.faces)
+        here = z.copy()
+        moved = reached & ~at & (wf != points.faces)
+        hm = e[moved]
+        here[moved] = mesh.halfedge_offset[hm] + mesh.halfedge_rotation[hm] * z[moved]
+        here[at] = mesh.face_points[wf[at], np.argmax(mesh.faces[wf[at]] == v[at, None], axis=1)]
+        init = np.full(k, np.nan + 0j)
+        final = np.full(k, np.nan + 0j)
+        src = np.full(k, -1, np.int64)
+        r = np.flatnonzero(reached)
+        if r.size:
+            wr = best[r]
+            travel = here[r] - W.img[wr]
+            unit = np.where(np.abs(travel) > 0, travel / np.where(np.abs(travel) > 0, np.abs(travel), 1), 0)
+            init[r] = self._initial_directions(wr, unit)
+            final[r] = self._arrival_in_basis(points[r], wf[r], unit)
+            src[r] = W.label[wr]
+        return GeodesicQuery(dist, src, init, final)
+
+    def _arrival_in_basis(self, points: SurfacePoints, faces, unit) -> np.ndarray:
+        """Arrival directions (face frames) in the points' bases; at a vertex, the straight-on direction."""
+        mesh = self.mesh
+        v = points.vertex_ids(mesh)
+        out = from_face_frame(mesh, points, faces, unit)
+        at = v >= 0
+        if np.any(at):
+            out[at] = -face_to_vertex(mesh, corner_halfedges(mesh, faces[at], v[at]), -unit[at])
+        out[unit == 0] = 0
+        return out
+
+    def _initial_directions(self, windows: np.ndarray, unit: np.ndarray) -> np.ndarray:
+        """Direction at the source of geodesics that leave ``windows``' pseudosources along ``unit``."""
+        W = self.W
+        w, d = windows.copy(), unit.copy()
+        chained = W.ps[w] >= 0
+        while np.any(chained):  # walk back from pseudosource vertices to the source
+            idx = np.flatnonzero(chained)
+            u = W.ps[w[idx]]
+            wp = self.vertex_parent[u]
+            pu = self.mesh.face_points[
+                W.he[wp] // 3, np.argmax(self.mesh.faces[W.he[wp] // 3] == u[:, None], axis=1)
+            ]
+            travel = pu - W.img[wp]
+            d[idx] = travel / np.abs(travel)
+            w[idx] = wp
+            chained[idx] = W.ps[wp] >= 0
+        out = d / W.rot[w]
+        vc = W.corner[w] >= 0
+        out[vc] = face_to_vertex(self.mesh, W.corner[w[vc]], out[vc])
+        out[unit == 0] = 0
+        return out
+
+    def path(self, point: SurfacePoints) -> Path:
+        """The exact shortest geodesic from the nearest source to a single point."""
+        mesh, W = self.mesh, self.W
+        if len(point) != 1:
+            raise GeodesicError(f"path() takes one point, got {len(point)}")
+        q = self.query(point)
+        if not np.isfinite(q.distances[0]):
+            raise GeodesicError("the point was not reached by the propagation (beyond max_distance?)")
+        # Restart from the query's choice of window.
+        v = point.vertex_ids(mesh)[0]
+        if v >= 0:
+            w = self.vertex_parent[v]
+        else:
+            e = point.edge_halfedges(mesh)[0]
+            z = point.in_face_frame(mesh)
+            w, d = self._best_windows(point.faces, z)
+            w = w[0]
+            if e >= 0 and mesh.twin[e] >= 0:
+                w2, d2 = self._best_windows(
+                    mesh.twin[[e]] // 3, mesh.halfedge_offset[e] + mesh.halfedge_rotation[e] * z
+                )
+                if d2[0] < d[0]:
+                    w = w2[0]
+        faces, bary = [point.faces[0]], [point.bary[0]]
+        segments = []
+        seg_final = q.final_directions[0]
+        face_w = W.he[w] // 3
+        end = self._point_in_frame(point, face_w)
+        while True:
+            # Walk one straight segment back from `end` (in face(w)'s frame) to its pseudosource.
+            while not W.direct[w]:
+                he = W.he[w]
+                f, k = he // 3, he % 3
+                A, B = mesh.face_points[f, k], mesh.face_points[f, (k + 1) % 3]
+                I = W.img[w]
+                dvec = end - I
+                u = float(np.clip(_cross(dvec, I - A) / _cross(dvec, B - A), 0.0, 1.0))
+                b = np.zeros(3)
+                b[k], b[(k + 1) % 3] = 1 - u, u
+                faces.append(f), bary.append(b)
+                end = mesh.halfedge_offset[he] + mesh.halfedge_rotation[he] * (A + u * (B - A))
+                w = W.parent[w]
+            f = W.he[w] // 3
+            first_dir = end - W.img[w]
+            first_dir = first_dir / abs(first_dir) if abs(first_dir) > 0 else 0j
+            if W.corner[w] >= 0:
+                t = face_to_vertex(mesh, np.array([W.corner[w]]), np.array([first_dir / W.rot[w]]))[0]
+            else:
+                t = first_dir / W.rot[w]
+            segments.append((t, seg_final))
+            c = W.corner[w]
+            if W.ps[w] < 0:
+                if c >= 0:
+                    b = np.zeros(3)
+                    b[c % 3] = 1
+                    faces.append(c // 3), bary.append(b)
+                else:
+                    faces.append(self.sources.faces[W.label[w]]), bary.append(self.sources.bary[W.label[w]])
+                break
+            u_vert = W.ps[w]
+            b = np.zeros(3)
+            b[c % 3] = 1
+            faces.append(c // 3), bary.append(b)
+            wp = self.vertex_parent[u_vert]
+            fp = W.he[wp] // 3
+            kp = int(np.argmax(mesh.faces[fp] == u_vert))
+            end = mesh.face_points[fp, kp]
+            arrive = end - W.img[wp]
+            arrive = arrive / abs(arrive)
+            seg_final = -face_to_vertex(mesh, np.array([3 * fp + kp]), np.array([-arrive]))[0]
+            w = wp
+        pts = SurfacePoints(np.array(faces[::-1]), np.array(bary[::-1]))
+        return Path(
+            length=float(q.distances[0]),
+            initial_direction=complex(q.initial_directions[0]),
+            final_direction=complex(q.final_directions[0]),
+            polyline=pts.positions(mesh),
+            points=pts,
+            segment_directions=np.array(segments[::-1], dtype=np.complex128).reshape(-1, 2),
+        )
+
+    def _point_in_frame(self, point: SurfacePoints, face: int) -> complex:
+        mesh = self.mesh
+        v = point.vertex_ids(mesh)[0]
+        if v >= 0:
+            return complex(mesh.face_points[face, int(np.argmax(mesh.faces[face] == v))])
+        z = point.in_face_frame(mesh)[0]
+        if point.faces[0] == face:
+            return complex(z)
+        e = point.edge_halfedges(mesh)[0]
+        return complex(mesh.halfedge_offset[e] + mesh.halfedge_rotation[e] * z)
+
+
+def _hit(I, X, P0, P1):
+    """Parameter t along P0 -> P1 where the ray from I through X crosses that line (clipped to [0, 1])."""
+    d = X - I
+    return np.clip(_cross(d, I - P0) / _cross(d, P1 - P0), 0.0, 1.0)
+
+
+def _ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Concatenation of arange(s, s + c) for each (s, c)."""
+    total = int(counts.sum())
+    if total == 0:
+        return np.empty(0, np.int64)
+    offsets = np.repeat(starts - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
+    return offsets + np.arange(total)
