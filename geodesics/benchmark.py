@@ -1,0 +1,173 @@
+"""Timings of the geodesic core, side by side with the peers the paper's authors used.
+
+:func:`run` returns the rows; the ``contact-edit bench geodesics`` command prints them. Peers that are
+not installed (potpourri3d, pygeodesic) are reported as missing rather than failing the run.
+"""
+
+from __future__ import annotations
+
+import time
+import tracemalloc
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .exact import GeodesicField
+from .maps import log_map
+from .points import SurfacePoints
+from .primitives import torus
+from .tangent import tangent_to_3d
+from .trace import exp_map
+
+
+@dataclass(frozen=True)
+class Row:
+    """One benchmark line: our median time, the peer's (if any), and what the numbers mean."""
+
+    task: str
+    ours: float
+    peer: float | None = None
+    peer_name: str = ""
+    note: str = ""
+
+
+def _median_time(fn: Callable[[], object], repeat: int) -> float:
+    fn()  # warm caches (per-mesh precomputation is excluded, as it is shared by all queries)
+    times = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return float(np.median(times))
+
+
+def _random_points(mesh, k, rng) -> SurfacePoints:
+    return SurfacePoints(rng.integers(0, mesh.n_faces, k), rng.dirichlet([2.0, 2.0, 2.0], k))
+
+
+def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | None = None) -> list[Row]:
+    """Run the geodesic benchmarks; ``progress`` receives a line of text before each one."""
+    say = progress or (lambda _msg: None)
+    rows: list[Row] = []
+    mesh = torus(n_major=140, n_minor=72)  # 20,160 faces, with saddle vertices on the inner side
+    rng = np.random.default_rng(0)
+    diameter = mesh.bounding_diagonal
+
+    say("exp_map")
+    origins = _random_points(mesh, rays, rng)
+    z = 0.1 * diameter * np.exp(1j * rng.uniform(0, 2 * np.pi, rays))
+    ours = _median_time(lambda: exp_map(mesh, origins, z), repeat)
+    peer, peer_name, note = None, "potpourri3d GeodesicTracer (looped)", "not installed"
+    try:
+        import potpourri3d
+
+        tracer = potpourri3d.GeodesicTracer(mesh.vertices, mesh.faces)
+        directions = tangent_to_3d(mesh, origins, z)
+        faces, bary = origins.faces, origins.bary
+
+        def theirs():
+            return [
+                tracer.trace_geodesic_from_face(int(faces[i]), bary[i], directions[i]) for i in range(rays)
+            ]
+
+        peer = _median_time(theirs, repeat)
+        ends = np.array([p[-1] for p in theirs()])
+        gap = np.max(np.linalg.norm(ends - exp_map(mesh, origins, z).points.positions(mesh), axis=1))
+        note = f"end points agree to {gap / diameter:.1e} x diameter"
+    except ImportError:
+        pass
+    rows.append(Row(f"exp_map: {rays} rays, 10% of the diameter long", ours, peer, peer_name, note))
+
+    say("log_map")
+    origin = SurfacePoints.from_vertices(mesh, [int(rng.integers(mesh.n_vertices))])
+    pool = _random_points(mesh, 40 * rays, rng)
+    distance = GeodesicField(mesh, origin).query(pool).distances
+    for share in (0.25, 1.0):
+        radius = share * distance.max()
+        targets = pool[np.flatnonzero(distance <= radius)[:rays]]
+        ours = _median_time(lambda t=targets: log_map(mesh, origin, t), repeat)
+        peer, note = None, "not installed"
+        try:
+            import pygeodesic.geodesic as pygeodesic
+
+            solver = pygeodesic.PyGeodesicAlgorithmExact(mesh.vertices, mesh.faces)
+            source = origin.vertex_ids(mesh)
+            nearby = np.flatnonzero(
+                GeodesicField(mesh, origin, max_distance=radius).vertex_distance <= radius
+            )
+            peer = _median_time(
+                lambda s=solver, v=source, n=nearby, r=radius: s.geodesicDistances(v, n, r), repeat
+            )
+            note = "peer: distances at vertices only, no directions"
+        except ImportError:
+            pass
+        where = "over the whole mesh" if share == 1.0 else f"within {share:.0%} of the farthest distance"
+        rows.append(
+            Row(
+                f"log_map (exact): {len(targets)} targets {where}",
+                ours,
+                peer,
+                "pygeodesic MMP (Kirsanov)",
+                note,
+            )
+        )
+
+    say("vector heat log map")
+    try:
+        import potpourri3d
+
+        heat = potpourri3d.MeshVectorHeatSolver(mesh.vertices, mesh.faces)
+        vertex = int(origin.vertex_ids(mesh)[0])
+        approx = heat.compute_log_map(vertex)
+        exact = GeodesicField(mesh, origin).vertex_distance
+        error = np.abs(np.linalg.norm(approx, axis=1) - exact)
+        peer = _median_time(lambda: heat.compute_log_map(vertex), repeat)
+        rows.append(
+            Row(
+                "for contrast: approximate log map at all vertices",
+                np.nan,
+                peer,
+                "potpourri3d vector heat method",
+                f"its distance error: median {np.median(error) / diameter:.1e}, "
+                f"max {error.max() / diameter:.1e} x diameter",
+            )
+        )
+    except ImportError:
+        pass
+
+    say("1M faces")
+    tracemalloc.start()
+    start = time.perf_counter()
+    big = torus(n_major=1000, n_minor=500)
+    built = time.perf_counter() - start
+    origins = _random_points(big, rays, rng)
+    z = 0.1 * big.bounding_diagonal * np.exp(1j * rng.uniform(0, 2 * np.pi, rays))
+    exp_map(big, origins, z)
+    traced = _median_time(lambda: exp_map(big, origins, z), repeat)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    rows.append(Row(f"1M faces: build and validate ({big.n_faces:,} faces)", built, note="one run"))
+    rows.append(
+        Row(
+            f"1M faces: exp_map {rays} rays",
+            traced,
+            note=f"peak memory of mesh and tracing: {peak / 2**30:.2f} GiB",
+        )
+    )
+    return rows
+
+
+def format_table(rows: list[Row]) -> str:
+    """A plain-text table of the rows, times in milliseconds, with ours/peer ratios."""
+
+    def ms(t):
+        return "" if t is None or not np.isfinite(t) else f"{1e3 * t:9.1f} ms"
+
+    lines = [f"{'task':66} {'ours':>12} {'peer':>12} {'ours/peer':>10}  peer / note"]
+    for r in rows:
+        ratio = f"{r.ours / r.peer:10.2f}" if r.peer and np.isfinite(r.ours) else " " * 10
+        who = r.peer_name if r.peer is not None else ""
+        detail = "; ".join(x for x in (who, r.note) if x)
+        lines.append(f"{r.task:66} {ms(r.ours):>12} {ms(r.peer):>12} {ratio}  {detail}")
+    return "\n".join(lines)
