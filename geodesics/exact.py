@@ -18,6 +18,9 @@ only when a real, strictly shorter path exists everywhere that window could reac
 * One angle, one split (ICH): of the windows that see a vertex through the same edge, only the one
   giving the vertex its shortest distance keeps the children on both sides; a worse one keeps only the
   child on the side away from the better path (its other rays would have to cross a shorter path).
+* Trimming (as in MMP): each edge keeps a few *champions*, the windows best at points along it. A window
+  is cut back from either end where a champion's distance function is strictly lower (found exactly:
+  two such functions cross at most twice along a line), and dropped when nothing is left.
 
 A query point's distance is the minimum over the windows entering its face (and the direct segments
 from pseudosources in that face); the path is recovered by walking back through parent windows.
@@ -43,6 +46,8 @@ RAY_SLACK = 1e-9
 MIN_WIDTH = 1e-12
 #: Processing band, in mean edge lengths.
 BAND = 3.0
+#: Champion slots per edge for trimming.
+SLOTS = 4
 
 
 def _cross(a, b):
@@ -65,6 +70,8 @@ class _Windows:
         "label": np.int64,  # which source
         "parent": np.int64,  # window this one was propagated from; -1 if it starts at its pseudosource
         "direct": np.bool_,  # a segment from the pseudosource inside its own face, not an edge window
+        "ep": np.float64,  # the image in its edge's own coordinates (from the edge's lower-numbered vertex):
+        "eq": np.float64,  # position along the edge and distance from it, for comparing windows on one edge
     }
 
     def __init__(self, capacity: int = 1024):
@@ -195,10 +202,16 @@ class GeodesicField:
         self._birth = np.zeros(n, np.int64)
         self._split_d = np.full(3 * mesh.n_faces, np.inf)
         self._split_u = np.zeros(3 * mesh.n_faces)
+        self._champion = np.full((mesh.n_edges, SLOTS), -1, np.int64)
+        self._champion_d = np.full((mesh.n_edges, SLOTS), np.inf)
+        self._flipped = mesh.halfedge_tail > mesh.halfedge_head  # halfedge runs against its edge's direction
         theta = mesh.angle_sums
         self._bends = np.where(
             mesh.is_boundary_vertex, theta > np.pi * (1 + 1e-9), theta > 2 * np.pi * (1 + 1e-9)
         )
+        if targets is not None:  # a target is at most this far beyond each corner of its face
+            self._target_corners = mesh.faces[targets.faces]
+            self._target_gaps = np.abs(mesh.face_points[targets.faces] - targets.in_face_frame(mesh)[:, None])
         self._pending = np.empty(0, np.int64)
         self._pending_key = np.empty(0)
         self._ps = np.empty(0, np.int64)
@@ -210,38 +223,10 @@ class GeodesicField:
     # ------------------------------------------------------------------ sources
 
     def _seed_sources(self) -> None:
-        mesh, src = self.mesh, self.sources
+        mesh = self.mesh
         P = mesh.face_points
-        z0 = src.in_face_frame(mesh)
-        v = src.vertex_ids(mesh)
-        e = src.edge_halfedges(mesh)
-        # Root faces of every source, with the source's position in that face and the frame rotation.
-        label, face, pos, rot, corner = [], [], [], [], []
-        for kind in ("face", "edge", "vertex"):
-            if kind == "face":
-                s = np.flatnonzero((v < 0) & (e < 0))
-                label.append(s), face.append(src.faces[s]), pos.append(z0[s])
-                rot.append(np.ones(s.size, complex)), corner.append(np.full(s.size, -1))
-            elif kind == "edge":
-                s = np.flatnonzero(e >= 0)
-                label.append(s), face.append(src.faces[s]), pos.append(z0[s])
-                rot.append(np.ones(s.size, complex)), corner.append(np.full(s.size, -1))
-                t = mesh.twin[e[s]]
-                s2 = s[t >= 0]
-                h = e[s2]
-                (
-                    label.append(s2),
-                    face.append(mesh.twin[h] // 3),
-                    pos.append(mesh.halfedge_offset[h] + mesh.halfedge_rotation[h] * z0[s2]),
-                )
-                rot.append(mesh.halfedge_rotation[h]), corner.append(np.full(s2.size, -1))
-            else:
-                s = np.flatnonzero(v >= 0)
-                counts = mesh.ring_start[v[s] + 1] - mesh.ring_start[v[s]]
-                h = mesh.ring[_ranges(mesh.ring_start[v[s]], counts)]
-                label.append(np.repeat(s, counts)), face.append(h // 3), pos.append(P[h // 3, h % 3])
-                rot.append(np.ones(h.size, complex)), corner.append(h)
-        label, face, pos, rot, corner = (np.concatenate(x) for x in (label, face, pos, rot, corner))
+        v, e = self.sources.vertex_ids(mesh), self.sources.edge_halfedges(mesh)
+        label, face, pos, rot, corner = _root_faces(mesh, self.sources)
         r = face.size
         direct = self.W.append(
             he=np.where(corner >= 0, corner, 3 * face),
@@ -256,6 +241,8 @@ class GeodesicField:
             label=label,
             parent=np.full(r, -1),
             direct=np.ones(r, bool),
+            ep=np.full(r, np.nan),
+            eq=np.full(r, np.nan),
         )
         # Vertices of root faces are reached by straight segments inside those faces.
         self._relax(mesh.faces[face].ravel(), np.abs(P[face] - pos[:, None]).ravel(), np.repeat(direct, 3))
@@ -313,12 +300,10 @@ class GeodesicField:
         """An upper bound on every target's distance (inf until each target's face is reached)."""
         if self.targets is None:
             return np.inf
-        mesh, t = self.mesh, self.targets
-        if len(t) == 0:
+        if len(self.targets) == 0:
             return 0.0
-        d = self.vertex_distance[mesh.faces[t.faces]]
-        gap = np.abs(mesh.face_points[t.faces] - t.in_face_frame(mesh)[:, None])
-        return float(np.max(np.min(d + gap, axis=1)))
+        d = self.vertex_distance[self._target_corners]
+        return float(np.max(np.min(d + self._target_gaps, axis=1)))
 
     def _propagate_batch(self, w: np.ndarray) -> None:
         mesh, W = self.mesh, self.W
@@ -426,13 +411,83 @@ class GeodesicField:
         if not np.any(keep):
             return
         kept = {key: val[keep] for key, val in cols.items()}
-        idx = self.W.append(**kept)
-        # Lower bound on any distance this window's rays can give: sigma + distance to the interval.
         Il, length, I = Il[keep], length[keep], I[keep]
-        proj = np.clip(Il.real / length, kept["u0"], kept["u1"])
+        kept["ep"] = np.where(self._flipped[kept["he"]], length - Il.real, Il.real)
+        kept["eq"] = np.abs(Il.imag)
+        idx = self.W.append(**kept)
+        self._crown(idx)
+        alive = self._trim(idx)
+        # Lower bound on any distance this window's rays can give: sigma + distance to the interval.
+        proj = np.clip(Il.real / length, self.W.u0[idx], self.W.u1[idx])
         key = kept["sigma"] + np.abs(I - (Q1[keep] + proj * E[keep]))
-        self._pending = np.concatenate([self._pending, idx])
-        self._pending_key = np.concatenate([self._pending_key, key])
+        self._pending = np.concatenate([self._pending, idx[alive]])
+        self._pending_key = np.concatenate([self._pending_key, key[alive]])
+
+    def _edge_intervals(self, w: np.ndarray):
+        """Edge, interval [a, b] in the edge's own parameter, and edge length of windows ``w``."""
+        W = self.W
+        he = W.he[w]
+        flip = self._flipped[he]
+        a = np.where(flip, 1 - W.u1[w], W.u0[w])
+        b = np.where(flip, 1 - W.u0[w], W.u1[w])
+        return self.mesh.halfedge_edge[he], a, b, self.mesh.halfedge_lengths[he]
+
+    def _slot_pairs(self, a: np.ndarray, b: np.ndarray):
+        """(window position, slot) pairs for the champion slots each interval [a, b] overlaps."""
+        k0 = np.minimum((a * SLOTS).astype(np.int64), SLOTS - 1)
+        k1 = np.minimum((b * SLOTS).astype(np.int64), SLOTS - 1)
+        count = k1 - k0 + 1
+        row = np.repeat(np.arange(a.size), count)
+        return row, k0[row] + np.arange(row.size) - np.repeat(np.cumsum(count) - count, count)
+
+    def _distance_along_edge(self, w: np.ndarray, x: np.ndarray, length: np.ndarray) -> np.ndarray:
+        """Distance through windows ``w`` to the points at edge parameter x."""
+        W = self.W
+        return W.sigma[w] + np.hypot(x * length - W.ep[w], W.eq[w])
+
+    def _crown(self, w: np.ndarray) -> None:
+        """Make windows the champions of the edge slots whose centres they reach most cheaply."""
+        edge, a, b, length = self._edge_intervals(w)
+        row, k = self._slot_pairs(a, b)
+        centre = (k + 0.5) / SLOTS
+        ok = (centre >= a[row]) & (centre <= b[row])
+        row, k, centre = row[ok], k[ok], centre[ok]
+        if row.size == 0:
+            return
+        value = self._distance_along_edge(w[row], centre, length[row])
+        slot = edge[row] * SLOTS + k
+        order = np.lexsort((value, slot))
+        first = order[np.r_[True, slot[order][1:] != slot[order][:-1]]]
+        best = self._champion_d.ravel()
+        better = first[value[first] < best[slot[first]]]
+        best[slot[better]] = value[better]
+        self._champion.ravel()[slot[better]] = w[row[better]]
+
+    def _trim(self, w: np.ndarray) -> np.ndarray:
+        """Cut windows back where a champion of their edge is strictly shorter; return which survive."""
+        W = self.W
+        edge, a, b, length = self._edge_intervals(w)
+        row, k = self._slot_pairs(a, b)
+        c = self._champion[edge[row], k]
+        ok = (c >= 0) & (c != w[row])
+        ok[1:] &= (c[1:] != c[:-1]) | (row[1:] != row[:-1])  # one comparison per champion
+        row, c = row[ok], c[ok]
+        new_a, new_b = a.copy(), b.copy()
+        if row.size:
+            _, ca, cb, _ = self._edge_intervals(c)
+            lo, hi = np.maximum(a[row], ca), np.minimum(b[row], cb)
+            cut_front, cut_back = _beaten_ends(
+                W.sigma[c], W.ep[c], W.eq[c], W.sigma[w[row]], W.ep[w[row]], W.eq[w[row]], lo, hi, length[row]
+            )
+            front = np.flatnonzero((lo <= a[row]) & (cut_front > lo))
+            np.maximum.at(new_a, row[front], cut_front[front])
+            back = np.flatnonzero((hi >= b[row]) & (cut_back < hi))
+            np.minimum.at(new_b, row[back], cut_back[back])
+        alive = new_b - new_a > MIN_WIDTH
+        flip = self._flipped[W.he[w]]
+        W.data["u0"][w] = np.where(flip, 1 - new_b, new_a)
+        W.data["u1"][w] = np.where(flip, 1 - new_a, new_b)
+        return alive
 
     def _relax(self, vertices: np.ndarray, dist: np.ndarray, parent: np.ndarray) -> None:
         """Lower vertex distances where a candidate is shorter; queue bending vertices as pseudosources."""
@@ -453,7 +508,11 @@ class GeodesicField:
         self._ps_birth = np.concatenate([self._ps_birth, self._birth[bends]])
 
     def _emit_pseudosources(self, verts: np.ndarray) -> None:
-        """Start windows from saddle/boundary vertices into the faces of their shadow cones."""
+        """Start windows from saddle/boundary vertices, covering exactly their shadow cones.
+
+        A shortest path through such a vertex leaves it at least π (measured on the surface) from the
+        way it came in, on both sides; only those directions get windows.
+        """
         mesh, W = self.mesh, self.W
         P = mesh.face_points
         parent = self.vertex_parent[verts]
@@ -471,16 +530,25 @@ class GeodesicField:
         u = np.repeat(verts, counts)
         ab, th, bd = np.repeat(a_back, counts), np.repeat(theta, counts), np.repeat(boundary, counts)
         lo = mesh.halfedge_angle[h]
-        hi = lo + mesh.corner_angles.ravel()[h]
+        spread = mesh.corner_angles.ravel()[h]
         slack = 1e-9
-        # Interior saddle: directions at least π from the way in on both sides, [ab+π, ab+θ-π] (mod θ).
+        # The part of each corner inside the cone, as angles [a0, a1] from the corner's first edge.
+        # Interior saddle: the cone is [ab+π, ab+θ-π] (mod θ); a corner (< π) meets it in one piece.
         start = np.mod(ab + np.pi - slack, th)
         width = th - 2 * np.pi + 2 * slack
-        inside = (np.mod(lo - start, th) <= width) | (np.mod(start - lo, th) <= hi - lo)
-        # Boundary vertex: [0, ab-π] and [ab+π, θ].
-        on_boundary = (lo <= ab - np.pi + slack) | (hi >= ab + np.pi - slack)
-        sel = np.where(bd, on_boundary, inside)
-        h, u = h[sel], u[sel]
+        s = np.mod(lo - start, th)  # the corner's start, in cone coordinates
+        wraps = np.minimum(s + spread, width) < s  # its part before the wrap misses the cone
+        shift = np.where(wraps, s - th, s)
+        a0 = np.maximum(shift, 0.0) - shift
+        a1 = np.minimum(shift + spread, width) - shift
+        # Boundary vertex: [0, ab-π] and [ab+π, θ]; a corner meets at most one of them.
+        first_a1 = np.minimum(lo + spread, ab - np.pi + slack) - lo
+        second_a0 = np.maximum(lo, ab + np.pi - slack) - lo
+        use_first = first_a1 >= 0
+        a0 = np.where(bd, np.where(use_first, 0.0, second_a0), a0)
+        a1 = np.where(bd, np.where(use_first, first_a1, spread), a1)
+        sel = a1 >= a0
+        h, u, a0, a1 = h[sel], u[sel], a0[sel], a1[sel]
         if h.size == 0:
             return
         f, k = h // 3, h % 3
@@ -502,6 +570,8 @@ class GeodesicField:
             label=label,
             parent=np.full(r, -1),
             direct=np.ones(r, bool),
+            ep=np.full(r, np.nan),
+            eq=np.full(r, np.nan),
         )
         others = np.stack([mesh.faces[f, (k + 1) % 3], mesh.faces[f, (k + 2) % 3]], 1)
         dist = sigma[:, None] + np.abs(np.stack([P[f, (k + 1) % 3], P[f, (k + 2) % 3]], 1) - pu[:, None])
@@ -510,10 +580,15 @@ class GeodesicField:
         ok = mesh.twin[opp] >= 0
         opp = opp[ok]
         n = opp.size
+        # Where the cone's bounding rays meet the opposite edge (parameters along it, then on its twin).
+        B, C = P[f[ok], (k[ok] + 1) % 3], P[f[ok], (k[ok] + 2) % 3]
+        first_edge = (B - pu[ok]) / np.abs(B - pu[ok])
+        t0 = _hit(pu[ok], pu[ok] + first_edge * np.exp(1j * a0[ok]), B, C)
+        t1 = _hit(pu[ok], pu[ok] + first_edge * np.exp(1j * a1[ok]), B, C)
         self._add_windows(
             he=mesh.twin[opp],
-            u0=np.zeros(n),
-            u1=np.ones(n),
+            u0=1 - t1,
+            u1=1 - t0,
             img=mesh.halfedge_offset[opp] + mesh.halfedge_rotation[opp] * pu[ok],
             sigma=sigma[ok],
             ps=u[ok],
@@ -564,8 +639,9 @@ class GeodesicField:
         best[~np.isfinite(dist)] = -1
         return best, dist
 
-    def query(self, points: SurfacePoints) -> GeodesicQuery:
-        """Distances, nearest sources and directions at the given points."""
+    def _locate(self, points: SurfacePoints):
+        """For each point: its best window (-1 if unreached), distance, that window's face, and the
+        point's position in that face's frame."""
         mesh, W = self.mesh, self.W
         points.validate(mesh)
         k = len(points)
@@ -586,24 +662,29 @@ class GeodesicField:
         )
         better = d2 < dist[other]
         best[other[better]], dist[other[better]] = b2[better], d2[better]
-        # Each point in the frame of its best window's face.
         reached = best >= 0
-        wf = np.where(reached, W.he[np.maximum(best, 0)] // 3, points.faces)
+        face = np.where(reached, W.he[np.maximum(best, 0)] // 3, points.faces)
         here = z.copy()
-        moved = reached & ~at & (wf != points.faces)
+        moved = reached & ~at & (face != points.faces)
         hm = e[moved]
         here[moved] = mesh.halfedge_offset[hm] + mesh.halfedge_rotation[hm] * z[moved]
-        here[at] = mesh.face_points[wf[at], np.argmax(mesh.faces[wf[at]] == v[at, None], axis=1)]
+        here[at] = mesh.face_points[face[at], np.argmax(mesh.faces[face[at]] == v[at, None], axis=1)]
+        return best, dist, face, here
+
+    def query(self, points: SurfacePoints) -> GeodesicQuery:
+        """Distances, nearest sources and directions at the given points."""
+        W = self.W
+        best, dist, face, here = self._locate(points)
+        k = len(points)
         init = np.full(k, np.nan + 0j)
         final = np.full(k, np.nan + 0j)
         src = np.full(k, -1, np.int64)
-        r = np.flatnonzero(reached)
+        r = np.flatnonzero(best >= 0)
         if r.size:
             wr = best[r]
-            travel = here[r] - W.img[wr]
-            unit = np.where(np.abs(travel) > 0, travel / np.where(np.abs(travel) > 0, np.abs(travel), 1), 0)
+            unit = _unit(here[r] - W.img[wr])
             init[r] = self._initial_directions(wr, unit)
-            final[r] = self._arrival_in_basis(points[r], wf[r], unit)
+            final[r] = self._arrival_in_basis(points[r], face[r], unit)
             src[r] = W.label[wr]
         return GeodesicQuery(dist, src, init, final)
 
@@ -646,91 +727,139 @@ class GeodesicField:
         if len(point) != 1:
             raise GeodesicError(f"path() takes one point, got {len(point)}")
         q = self.query(point)
-        if not np.isfinite(q.distances[0]):
+        best, _, _, here = self._locate(point)
+        if best[0] < 0:
             raise GeodesicError("the point was not reached by the propagation (beyond max_distance?)")
-        # Restart from the query's choice of window.
-        v = point.vertex_ids(mesh)[0]
-        if v >= 0:
-            w = self.vertex_parent[v]
-        else:
-            e = point.edge_halfedges(mesh)[0]
-            z = point.in_face_frame(mesh)
-            w, d = self._best_windows(point.faces, z)
-            w = w[0]
-            if e >= 0 and mesh.twin[e] >= 0:
-                w2, d2 = self._best_windows(
-                    mesh.twin[[e]] // 3, mesh.halfedge_offset[e] + mesh.halfedge_rotation[e] * z
-                )
-                if d2[0] < d[0]:
-                    w = w2[0]
-        faces, bary = [point.faces[0]], [point.bary[0]]
+        w, end = int(best[0]), complex(here[0])
+        faces, bary = [int(point.faces[0])], [point.bary[0]]
         segments = []
-        seg_final = q.final_directions[0]
-        face_w = W.he[w] // 3
-        end = self._point_in_frame(point, face_w)
+        final = q.final_directions[0]
         while True:
-            # Walk one straight segment back from `end` (in face(w)'s frame) to its pseudosource.
+            # Walk one straight segment back from `end` (in face(w)'s frame) to its pseudosource,
+            # recording where it crosses each edge.
             while not W.direct[w]:
                 he = W.he[w]
-                f, k = he // 3, he % 3
-                A, B = mesh.face_points[f, k], mesh.face_points[f, (k + 1) % 3]
-                I = W.img[w]
-                dvec = end - I
-                u = float(np.clip(_cross(dvec, I - A) / _cross(dvec, B - A), 0.0, 1.0))
-                b = np.zeros(3)
-                b[k], b[(k + 1) % 3] = 1 - u, u
-                faces.append(f), bary.append(b)
+                A, B = mesh.face_points.flat[he], mesh.face_points.flat[mesh.halfedge_next[he]]
+                d = end - W.img[w]
+                u = float(np.clip(_cross(d, W.img[w] - A) / _cross(d, B - A), 0.0, 1.0))
+                crossing = np.zeros(3)
+                crossing[[he % 3, (he + 1) % 3]] = 1 - u, u
+                faces.append(he // 3)
+                bary.append(crossing)
                 end = mesh.halfedge_offset[he] + mesh.halfedge_rotation[he] * (A + u * (B - A))
                 w = W.parent[w]
-            f = W.he[w] // 3
-            first_dir = end - W.img[w]
-            first_dir = first_dir / abs(first_dir) if abs(first_dir) > 0 else 0j
-            if W.corner[w] >= 0:
-                t = face_to_vertex(mesh, np.array([W.corner[w]]), np.array([first_dir / W.rot[w]]))[0]
-            else:
-                t = first_dir / W.rot[w]
-            segments.append((t, seg_final))
+            leave = _unit(end - W.img[w]) / W.rot[w]
             c = W.corner[w]
+            if c >= 0:
+                leave = face_to_vertex(mesh, np.array([c]), np.array([leave]))[0]
+                faces.append(c // 3)
+                bary.append(np.eye(3)[c % 3])
+            else:
+                faces.append(self.sources.faces[W.label[w]])
+                bary.append(self.sources.bary[W.label[w]])
+            segments.append((leave, final))
             if W.ps[w] < 0:
-                if c >= 0:
-                    b = np.zeros(3)
-                    b[c % 3] = 1
-                    faces.append(c // 3), bary.append(b)
-                else:
-                    faces.append(self.sources.faces[W.label[w]]), bary.append(self.sources.bary[W.label[w]])
                 break
-            u_vert = W.ps[w]
-            b = np.zeros(3)
-            b[c % 3] = 1
-            faces.append(c // 3), bary.append(b)
-            wp = self.vertex_parent[u_vert]
-            fp = W.he[wp] // 3
-            kp = int(np.argmax(mesh.faces[fp] == u_vert))
-            end = mesh.face_points[fp, kp]
-            arrive = end - W.img[wp]
-            arrive = arrive / abs(arrive)
-            seg_final = -face_to_vertex(mesh, np.array([3 * fp + kp]), np.array([-arrive]))[0]
-            w = wp
-        pts = SurfacePoints(np.array(faces[::-1]), np.array(bary[::-1]))
+            # The segment started at a vertex the path bends around; continue from how it got there.
+            vertex = W.ps[w]
+            w = self.vertex_parent[vertex]
+            corner = corner_halfedges(mesh, np.array([W.he[w] // 3]), np.array([vertex]))
+            end = complex(mesh.face_points.flat[corner[0]])
+            final = -face_to_vertex(mesh, corner, np.array([-_unit(end - W.img[w])]))[0]
+        points = SurfacePoints(np.array(faces[::-1]), np.array(bary[::-1]))
         return Path(
             length=float(q.distances[0]),
             initial_direction=complex(q.initial_directions[0]),
             final_direction=complex(q.final_directions[0]),
-            polyline=pts.positions(mesh),
-            points=pts,
+            polyline=points.positions(mesh),
+            points=points,
             segment_directions=np.array(segments[::-1], dtype=np.complex128).reshape(-1, 2),
         )
 
-    def _point_in_frame(self, point: SurfacePoints, face: int) -> complex:
-        mesh = self.mesh
-        v = point.vertex_ids(mesh)[0]
-        if v >= 0:
-            return complex(mesh.face_points[face, int(np.argmax(mesh.faces[face] == v))])
-        z = point.in_face_frame(mesh)[0]
-        if point.faces[0] == face:
-            return complex(z)
-        e = point.edge_halfedges(mesh)[0]
-        return complex(mesh.halfedge_offset[e] + mesh.halfedge_rotation[e] * z)
+
+def _root_faces(mesh: TriMesh, sources: SurfacePoints):
+    """The faces each source lies in: its face; both faces of its edge; every face around its vertex.
+
+    Returns, per (source, face) pair: the source index, the face, the source's position in that face's
+    frame, the rotation from the source's own frame to that face's, and for vertex sources the corner
+    halfedge at the vertex (-1 otherwise).
+    """
+    z = sources.in_face_frame(mesh)
+    v, e = sources.vertex_ids(mesh), sources.edge_halfedges(mesh)
+    parts = []
+    inner = np.flatnonzero(v < 0)  # in a face or on an edge: its own face first
+    parts.append(
+        (inner, sources.faces[inner], z[inner], np.ones(inner.size, complex), -np.ones(inner.size, int))
+    )
+    across = np.flatnonzero((e >= 0) & (mesh.twin[np.maximum(e, 0)] >= 0))  # the other face of its edge
+    h = e[across]
+    parts.append(
+        (
+            across,
+            mesh.twin[h] // 3,
+            mesh.halfedge_offset[h] + mesh.halfedge_rotation[h] * z[across],
+            mesh.halfedge_rotation[h],
+            -np.ones(across.size, int),
+        )
+    )
+    at = np.flatnonzero(v >= 0)  # on a vertex: every corner around it, each in its own frame
+    counts = mesh.ring_start[v[at] + 1] - mesh.ring_start[v[at]]
+    h = mesh.ring[_ranges(mesh.ring_start[v[at]], counts)]
+    parts.append(
+        (np.repeat(at, counts), h // 3, mesh.face_points[h // 3, h % 3], np.ones(h.size, complex), h)
+    )
+    return tuple(np.concatenate(column) for column in zip(*parts, strict=True))
+
+
+def _beaten_ends(sc, pc, qc, sw, pw, qw, lo, hi, length):
+    """Where a window c is strictly shorter than a window w on their common edge interval [lo, hi].
+
+    Along the edge (coordinate t), each distance is ``sigma + hypot(t - p, q)``; their difference
+    vanishes at most twice (squaring twice gives a quadratic). Returns, in edge parameters, the end of
+    the stretch beaten from ``lo`` (``lo`` if none) and the start of the one beaten up to ``hi`` (``hi``
+    if none).
+    """
+    delta = sw - sc
+    A = 2 * (pw - pc)
+    B = pc**2 + qc**2 - pw**2 - qw**2 - delta**2
+    a2 = A**2 - 4 * delta**2
+    a1 = 2 * A * B + 8 * delta**2 * pw
+    a0 = B**2 - 4 * delta**2 * (pw**2 + qw**2)
+    disc = a1**2 - 4 * a2 * a0
+    # Equal sigmas (one source seen through two unfoldings) give a double root where the unsquared
+    # difference still changes sign, so a discriminant that is zero up to rounding is a root.
+    real = disc >= -1e-9 * (a1**2 + np.abs(4 * a2 * a0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        q = -0.5 * (a1 + np.copysign(np.sqrt(np.maximum(disc, 0.0)), a1))
+        roots = np.stack([q / a2, a0 / q], 1) / length[:, None]
+    roots[~real] = np.nan
+    inside = (roots > lo[:, None]) & (roots < hi[:, None])
+    r1 = np.where(inside[:, 0], roots[:, 0], hi)
+    r2 = np.where(inside[:, 1], roots[:, 1], hi)
+    r_lo, r_hi = np.minimum(r1, r2), np.maximum(r1, r2)
+    # Three pieces [lo, r_lo], [r_lo, r_hi], [r_hi, hi] (the last two may be empty); the sign of the
+    # difference is constant on each, so its midpoint decides.
+
+    def beaten(t0, t1):
+        mid = 0.5 * (t0 + t1) * length
+        return sc + np.hypot(mid - pc, qc) < (sw + np.hypot(mid - pw, qw)) * (1 - PRUNE_MARGIN)
+
+    b0, b1, b2 = beaten(lo, r_lo), beaten(r_lo, r_hi), beaten(r_hi, hi)
+    e1, e2 = r_hi <= r_lo, hi <= r_hi
+    ok1, ok2 = b1 | e1, b2 | e2
+    front = np.where(b0 & ok1 & ok2, hi, np.where(b0 & ok1, r_hi, np.where(b0, r_lo, lo)))
+    from_0 = ok2 & ok1 & b0
+    from_1 = ok2 & ((b1 & ~e1) | (b2 & ~e2)) & ok1
+    from_2 = b2 & ~e2
+    back = np.where(from_0, lo, np.where(from_1, r_lo, np.where(from_2, r_hi, hi)))
+    return front, back
+
+
+def _unit(z):
+    """z / |z|, and 0 where z is 0."""
+    z = np.asarray(z, dtype=np.complex128)
+    length = np.abs(z)
+    return np.where(length > 0, z / np.where(length > 0, length, 1.0), 0)
 
 
 def _hit(I, X, P0, P1):
