@@ -14,7 +14,10 @@ import sys
 def _bench(args: argparse.Namespace) -> int:
     from geodesics import benchmark
 
-    print(f"contact-edit bench geodesics: median of {args.repeat} runs on this machine", flush=True)
+    print(
+        f"contact-edit bench geodesics: median of {args.repeat} runs after {benchmark.WARMUP} untimed ones",
+        flush=True,
+    )
     rows = benchmark.run(
         repeat=args.repeat,
         rays=args.rays,
@@ -29,7 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True)
     bench = commands.add_parser("bench", help="run a benchmark and print its table")
     bench.add_argument("target", choices=["geodesics"], help="what to benchmark")
-    bench.add_argument("--repeat", type=int, default=5, help="runs per timing (the median is shown)")
+    bench.add_argument("--repeat", type=int, default=7, help="runs per timing (the median is shown)")
     bench.add_argument("--rays", type=int, default=2000, help="rays / targets per query")
     bench.set_defaults(run=_bench)
     return parser

@@ -112,7 +112,10 @@ def exp_map(mesh: TriMesh, origins: SurfacePoints, z) -> Trace:
             break
         dx, dy = dirn.real.copy(), dirn.imag.copy()
         db = np.take(GX, face, axis=1) * dx + np.take(GY, face, axis=1) * dy
-        leaving = (db < -np.take(TOL, face, axis=1)) & (corners != entry)
+        leaving = (db < 0) & (corners != entry)
+        anchored = np.flatnonzero(entry < 0)
+        if anchored.size:  # a ray leaving a vertex or edge may run along an edge: not an exit
+            leaving[:, anchored] &= db[:, anchored] < -np.take(TOL, face[anchored], axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.where(leaving, -B / db, np.inf)
         np.maximum(t, 0.0, out=t)
@@ -130,8 +133,10 @@ def exp_map(mesh: TriMesh, origins: SurfacePoints, z) -> Trace:
         # Move to the exit edge, which runs from corner j1 to corner j2.
         lanes = all_lanes[: ray.size]
         j1, j2 = (j + 1) % 3, (j + 2) % 3
-        b1 = np.maximum(B[j1, lanes] + t_exit * db[j1, lanes], 0.0)
-        b2 = np.maximum(B[j2, lanes] + t_exit * db[j2, lanes], 0.0)
+        with np.errstate(invalid="ignore"):
+            exit_b = B + t_exit * db
+        b1 = np.maximum(exit_b[j1, lanes], 0.0)
+        b2 = np.maximum(exit_b[j2, lanes], 0.0)
         remaining = remaining - t_exit
         h = 3 * face + j1
         tw = twin[h]
