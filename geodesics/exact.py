@@ -18,9 +18,6 @@ only when a real, strictly shorter path exists everywhere that window could reac
 * One angle, one split (ICH): of the windows that see a vertex through the same edge, only the one
   giving the vertex its shortest distance keeps the children on both sides; a worse one keeps only the
   child on the side away from the better path (its other rays would have to cross a shorter path).
-* Trimming (as in MMP): each edge keeps a few *champions*, the windows best at points along it. A window
-  is cut back from either end where a champion's distance function is strictly lower (found exactly:
-  two such functions cross at most twice along a line), and dropped when nothing is left.
 
 A query point's distance is the minimum over the windows entering its face (and the direct segments
 from pseudosources in that face); the path is recovered by walking back through parent windows.
@@ -46,8 +43,6 @@ RAY_SLACK = 1e-9
 MIN_WIDTH = 1e-12
 #: Processing band, in mean edge lengths.
 BAND = 3.0
-#: Champion slots per edge for trimming.
-SLOTS = 4
 
 
 def _cross(a, b):
@@ -70,8 +65,6 @@ class _Windows:
         "label": np.int64,  # which source
         "parent": np.int64,  # window this one was propagated from; -1 if it starts at its pseudosource
         "direct": np.bool_,  # a segment from the pseudosource inside its own face, not an edge window
-        "ep": np.float64,  # the image in its edge's own coordinates (from the edge's lower-numbered vertex):
-        "eq": np.float64,  # position along the edge and distance from it, for comparing windows on one edge
     }
 
     def __init__(self, capacity: int = 1024):
@@ -202,9 +195,6 @@ class GeodesicField:
         self._birth = np.zeros(n, np.int64)
         self._split_d = np.full(3 * mesh.n_faces, np.inf)
         self._split_u = np.zeros(3 * mesh.n_faces)
-        self._champion = np.full((mesh.n_edges, SLOTS), -1, np.int64)
-        self._champion_d = np.full((mesh.n_edges, SLOTS), np.inf)
-        self._flipped = mesh.halfedge_tail > mesh.halfedge_head  # halfedge runs against its edge's direction
         theta = mesh.angle_sums
         self._bends = np.where(
             mesh.is_boundary_vertex, theta > np.pi * (1 + 1e-9), theta > 2 * np.pi * (1 + 1e-9)
@@ -241,8 +231,6 @@ class GeodesicField:
             label=label,
             parent=np.full(r, -1),
             direct=np.ones(r, bool),
-            ep=np.full(r, np.nan),
-            eq=np.full(r, np.nan),
         )
         # Vertices of root faces are reached by straight segments inside those faces.
         self._relax(mesh.faces[face].ravel(), np.abs(P[face] - pos[:, None]).ravel(), np.repeat(direct, 3))
@@ -411,83 +399,12 @@ class GeodesicField:
         if not np.any(keep):
             return
         kept = {key: val[keep] for key, val in cols.items()}
-        Il, length, I = Il[keep], length[keep], I[keep]
-        kept["ep"] = np.where(self._flipped[kept["he"]], length - Il.real, Il.real)
-        kept["eq"] = np.abs(Il.imag)
         idx = self.W.append(**kept)
-        self._crown(idx)
-        alive = self._trim(idx)
         # Lower bound on any distance this window's rays can give: sigma + distance to the interval.
-        proj = np.clip(Il.real / length, self.W.u0[idx], self.W.u1[idx])
-        key = kept["sigma"] + np.abs(I - (Q1[keep] + proj * E[keep]))
-        self._pending = np.concatenate([self._pending, idx[alive]])
-        self._pending_key = np.concatenate([self._pending_key, key[alive]])
-
-    def _edge_intervals(self, w: np.ndarray):
-        """Edge, interval [a, b] in the edge's own parameter, and edge length of windows ``w``."""
-        W = self.W
-        he = W.he[w]
-        flip = self._flipped[he]
-        a = np.where(flip, 1 - W.u1[w], W.u0[w])
-        b = np.where(flip, 1 - W.u0[w], W.u1[w])
-        return self.mesh.halfedge_edge[he], a, b, self.mesh.halfedge_lengths[he]
-
-    def _slot_pairs(self, a: np.ndarray, b: np.ndarray):
-        """(window position, slot) pairs for the champion slots each interval [a, b] overlaps."""
-        k0 = np.minimum((a * SLOTS).astype(np.int64), SLOTS - 1)
-        k1 = np.minimum((b * SLOTS).astype(np.int64), SLOTS - 1)
-        count = k1 - k0 + 1
-        row = np.repeat(np.arange(a.size), count)
-        return row, k0[row] + np.arange(row.size) - np.repeat(np.cumsum(count) - count, count)
-
-    def _distance_along_edge(self, w: np.ndarray, x: np.ndarray, length: np.ndarray) -> np.ndarray:
-        """Distance through windows ``w`` to the points at edge parameter x."""
-        W = self.W
-        return W.sigma[w] + np.hypot(x * length - W.ep[w], W.eq[w])
-
-    def _crown(self, w: np.ndarray) -> None:
-        """Make windows the champions of the edge slots whose centres they reach most cheaply."""
-        edge, a, b, length = self._edge_intervals(w)
-        row, k = self._slot_pairs(a, b)
-        centre = (k + 0.5) / SLOTS
-        ok = (centre >= a[row]) & (centre <= b[row])
-        row, k, centre = row[ok], k[ok], centre[ok]
-        if row.size == 0:
-            return
-        value = self._distance_along_edge(w[row], centre, length[row])
-        slot = edge[row] * SLOTS + k
-        order = np.lexsort((value, slot))
-        first = order[np.r_[True, slot[order][1:] != slot[order][:-1]]]
-        best = self._champion_d.ravel()
-        better = first[value[first] < best[slot[first]]]
-        best[slot[better]] = value[better]
-        self._champion.ravel()[slot[better]] = w[row[better]]
-
-    def _trim(self, w: np.ndarray) -> np.ndarray:
-        """Cut windows back where a champion of their edge is strictly shorter; return which survive."""
-        W = self.W
-        edge, a, b, length = self._edge_intervals(w)
-        row, k = self._slot_pairs(a, b)
-        c = self._champion[edge[row], k]
-        ok = (c >= 0) & (c != w[row])
-        ok[1:] &= (c[1:] != c[:-1]) | (row[1:] != row[:-1])  # one comparison per champion
-        row, c = row[ok], c[ok]
-        new_a, new_b = a.copy(), b.copy()
-        if row.size:
-            _, ca, cb, _ = self._edge_intervals(c)
-            lo, hi = np.maximum(a[row], ca), np.minimum(b[row], cb)
-            cut_front, cut_back = _beaten_ends(
-                W.sigma[c], W.ep[c], W.eq[c], W.sigma[w[row]], W.ep[w[row]], W.eq[w[row]], lo, hi, length[row]
-            )
-            front = np.flatnonzero((lo <= a[row]) & (cut_front > lo))
-            np.maximum.at(new_a, row[front], cut_front[front])
-            back = np.flatnonzero((hi >= b[row]) & (cut_back < hi))
-            np.minimum.at(new_b, row[back], cut_back[back])
-        alive = new_b - new_a > MIN_WIDTH
-        flip = self._flipped[W.he[w]]
-        W.data["u0"][w] = np.where(flip, 1 - new_b, new_a)
-        W.data["u1"][w] = np.where(flip, 1 - new_a, new_b)
-        return alive
+        proj = np.clip(Il.real[keep] / length[keep], kept["u0"], kept["u1"])
+        key = kept["sigma"] + np.abs(I[keep] - (Q1[keep] + proj * E[keep]))
+        self._pending = np.concatenate([self._pending, idx])
+        self._pending_key = np.concatenate([self._pending_key, key])
 
     def _relax(self, vertices: np.ndarray, dist: np.ndarray, parent: np.ndarray) -> None:
         """Lower vertex distances where a candidate is shorter; queue bending vertices as pseudosources."""
@@ -570,8 +487,6 @@ class GeodesicField:
             label=label,
             parent=np.full(r, -1),
             direct=np.ones(r, bool),
-            ep=np.full(r, np.nan),
-            eq=np.full(r, np.nan),
         )
         others = np.stack([mesh.faces[f, (k + 1) % 3], mesh.faces[f, (k + 2) % 3]], 1)
         dist = sigma[:, None] + np.abs(np.stack([P[f, (k + 1) % 3], P[f, (k + 2) % 3]], 1) - pu[:, None])
@@ -809,50 +724,6 @@ def _root_faces(mesh: TriMesh, sources: SurfacePoints):
         (np.repeat(at, counts), h // 3, mesh.face_points[h // 3, h % 3], np.ones(h.size, complex), h)
     )
     return tuple(np.concatenate(column) for column in zip(*parts, strict=True))
-
-
-def _beaten_ends(sc, pc, qc, sw, pw, qw, lo, hi, length):
-    """Where a window c is strictly shorter than a window w on their common edge interval [lo, hi].
-
-    Along the edge (coordinate t), each distance is ``sigma + hypot(t - p, q)``; their difference
-    vanishes at most twice (squaring twice gives a quadratic). Returns, in edge parameters, the end of
-    the stretch beaten from ``lo`` (``lo`` if none) and the start of the one beaten up to ``hi`` (``hi``
-    if none).
-    """
-    delta = sw - sc
-    A = 2 * (pw - pc)
-    B = pc**2 + qc**2 - pw**2 - qw**2 - delta**2
-    a2 = A**2 - 4 * delta**2
-    a1 = 2 * A * B + 8 * delta**2 * pw
-    a0 = B**2 - 4 * delta**2 * (pw**2 + qw**2)
-    disc = a1**2 - 4 * a2 * a0
-    # Equal sigmas (one source seen through two unfoldings) give a double root where the unsquared
-    # difference still changes sign, so a discriminant that is zero up to rounding is a root.
-    real = disc >= -1e-9 * (a1**2 + np.abs(4 * a2 * a0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        q = -0.5 * (a1 + np.copysign(np.sqrt(np.maximum(disc, 0.0)), a1))
-        roots = np.stack([q / a2, a0 / q], 1) / length[:, None]
-    roots[~real] = np.nan
-    inside = (roots > lo[:, None]) & (roots < hi[:, None])
-    r1 = np.where(inside[:, 0], roots[:, 0], hi)
-    r2 = np.where(inside[:, 1], roots[:, 1], hi)
-    r_lo, r_hi = np.minimum(r1, r2), np.maximum(r1, r2)
-    # Three pieces [lo, r_lo], [r_lo, r_hi], [r_hi, hi] (the last two may be empty); the sign of the
-    # difference is constant on each, so its midpoint decides.
-
-    def beaten(t0, t1):
-        mid = 0.5 * (t0 + t1) * length
-        return sc + np.hypot(mid - pc, qc) < (sw + np.hypot(mid - pw, qw)) * (1 - PRUNE_MARGIN)
-
-    b0, b1, b2 = beaten(lo, r_lo), beaten(r_lo, r_hi), beaten(r_hi, hi)
-    e1, e2 = r_hi <= r_lo, hi <= r_hi
-    ok1, ok2 = b1 | e1, b2 | e2
-    front = np.where(b0 & ok1 & ok2, hi, np.where(b0 & ok1, r_hi, np.where(b0, r_lo, lo)))
-    from_0 = ok2 & ok1 & b0
-    from_1 = ok2 & ((b1 & ~e1) | (b2 & ~e2)) & ok1
-    from_2 = b2 & ~e2
-    back = np.where(from_0, lo, np.where(from_1, r_lo, np.where(from_2, r_hi, hi)))
-    return front, back
 
 
 def _unit(z):
