@@ -33,7 +33,7 @@ import numpy as np
 from .errors import GeodesicError, describe_ids
 from .mesh import TriMesh
 from .points import SurfacePoints
-from .tangent import corner_halfedges, face_to_vertex, from_face_frame
+from .tangent import arrival_to_basis, corner_halfedges, face_to_vertex
 
 #: Relative margin by which a path must be shorter for a rule to discard a window.
 PRUNE_MARGIN = 1e-10
@@ -599,20 +599,9 @@ class GeodesicField:
             wr = best[r]
             unit = _unit(here[r] - W.img[wr])
             init[r] = self._initial_directions(wr, unit)
-            final[r] = self._arrival_in_basis(points[r], face[r], unit)
+            final[r] = arrival_to_basis(self.mesh, points[r], face[r], unit)
             src[r] = W.label[wr]
         return GeodesicQuery(dist, src, init, final)
-
-    def _arrival_in_basis(self, points: SurfacePoints, faces, unit) -> np.ndarray:
-        """Arrival directions (face frames) in the points' bases; at a vertex, the straight-on direction."""
-        mesh = self.mesh
-        v = points.vertex_ids(mesh)
-        out = from_face_frame(mesh, points, faces, unit)
-        at = v >= 0
-        if np.any(at):
-            out[at] = -face_to_vertex(mesh, corner_halfedges(mesh, faces[at], v[at]), -unit[at])
-        out[unit == 0] = 0
-        return out
 
     def _initial_directions(self, windows: np.ndarray, unit: np.ndarray) -> np.ndarray:
         """Direction at the source of geodesics that leave ``windows``' pseudosources along ``unit``."""
@@ -680,7 +669,8 @@ class GeodesicField:
             w = self.vertex_parent[vertex]
             corner = corner_halfedges(mesh, np.array([W.he[w] // 3]), np.array([vertex]))
             end = complex(mesh.face_points.flat[corner[0]])
-            final = -face_to_vertex(mesh, corner, np.array([-_unit(end - W.img[w])]))[0]
+            at_vertex = SurfacePoints(corner // 3, np.eye(3)[corner % 3])
+            final = arrival_to_basis(mesh, at_vertex, corner // 3, _unit([end - W.img[w]]))[0]
         points = SurfacePoints(np.array(faces[::-1]), np.array(bary[::-1]))
         return Path(
             length=float(q.distances[0]),

@@ -122,6 +122,24 @@ def from_face_frame(mesh: TriMesh, points: SurfacePoints, faces, z_face) -> np.n
     return z
 
 
+def arrival_to_basis(mesh: TriMesh, points: SurfacePoints, faces, z_face) -> np.ndarray:
+    """Directions of travel *arriving* at points, given in the frames of ``faces`` (each holding its
+    point), in the points' bases.
+
+    At a vertex, the direction of arrival is its straight-on continuation: the way back rotated by π in
+    the vertex basis (Polthier and Schmies' straightest rule), so an arrival followed by an unchanged
+    departure passes straight through.
+    """
+    faces = np.asarray(faces, dtype=np.int64)
+    z = np.asarray(z_face, dtype=np.complex128)
+    out = from_face_frame(mesh, points, faces, z)
+    v = points.vertex_ids(mesh)
+    at = v >= 0
+    if np.any(at):
+        out[at] = -face_to_vertex(mesh, corner_halfedges(mesh, faces[at], v[at]), -z[at])
+    return out
+
+
 def change_basis(mesh: TriMesh, z, source: SurfacePoints, target: SurfacePoints) -> np.ndarray:
     """Re-express directions from the bases of ``source`` points in the bases of ``target`` points.
 

@@ -17,7 +17,7 @@ import numpy as np
 from .errors import GeodesicError, MeshError
 from .mesh import TriMesh
 from .points import SurfacePoints
-from .tangent import face_to_vertex, to_face_frame, vertex_to_face
+from .tangent import arrival_to_basis, face_to_vertex, to_face_frame, vertex_to_face
 
 #: A ray passing within this barycentric distance of a vertex goes through the vertex.
 VERTEX_SNAP = 1e-11
@@ -221,10 +221,7 @@ def _finish(mesh, faces, bary, d, unit, length, stopped, travelled) -> Trace:
     bary[np.flatnonzero(at_vertex), local[at_vertex]] = 1.0
     bary[~at_vertex[:, None] & (bary < VERTEX_SNAP)] = 0.0
     points = SurfacePoints(faces, bary)
-    directions = d.copy()
-    if np.any(at_vertex):
-        corner = 3 * faces[at_vertex] + local[at_vertex]
-        directions[at_vertex] = -face_to_vertex(mesh, corner, -d[at_vertex])
+    directions = arrival_to_basis(mesh, points, faces, d)
     zero = length == 0
     directions[zero] = unit[zero]
     return Trace(points, directions, stopped, travelled)
