@@ -8,21 +8,40 @@
 * :func:`transport`, :func:`closest_points`, :func:`tangent_axes` and the basis conversions in
   :mod:`geodesics.tangent`.
 
+The contact model (Contact Edit §4, Algorithms 1-5) is built on them:
+
+* :class:`Axis` — a piecewise geodesic carrying a patch; :class:`ContactPatch` — a patch parameterized by
+  its axis, with transfer, translate, rotate and bend; :func:`farthest_pair_axis`, :func:`medial_axis`.
+* :class:`ContactSet` — named patches with parent links and pairs, saved as JSON contact files.
+* :class:`ContactAtlas` — charts around axial curves for moving contacts between different hands.
+
 Tangent vectors are complex numbers in each point's tangent basis (see :mod:`geodesics.tangent`).
 """
 
-from .errors import GeodesicError, MeshError, MeshWarning
+from .atlas import AtlasCoordinates, ContactAtlas
+from .axis import Axis
+from .contacts import ContactSet, Link
+from .default_axes import farthest_pair_axis, medial_axis
+from .errors import ContactError, GeodesicError, MeshError, MeshWarning
 from .exact import GeodesicField, GeodesicQuery, Path
 from .maps import closest_points, geodesic_path, log_map, transport
 from .mesh import TriMesh
+from .patch import ContactPatch
 from .points import SurfacePoints
 from .tangent import change_basis, tangent_axes, tangent_from_3d, tangent_to_3d
 from .trace import Trace, exp_map
 
 __all__ = [
+    "AtlasCoordinates",
+    "Axis",
+    "ContactAtlas",
+    "ContactError",
+    "ContactPatch",
+    "ContactSet",
     "GeodesicError",
     "GeodesicField",
     "GeodesicQuery",
+    "Link",
     "MeshError",
     "MeshWarning",
     "Path",
@@ -32,8 +51,10 @@ __all__ = [
     "change_basis",
     "closest_points",
     "exp_map",
+    "farthest_pair_axis",
     "geodesic_path",
     "log_map",
+    "medial_axis",
     "tangent_axes",
     "tangent_from_3d",
     "tangent_to_3d",

@@ -46,3 +46,8 @@ class GeodesicError(ValueError):
 
 class MeshWarning(UserWarning):
     """Something in a mesh was tolerated but is worth knowing (e.g. vertices no face uses)."""
+
+
+class ContactError(ValueError):
+    """A contact operation cannot be carried out: an empty patch, a degenerate axis, a transfer or edit
+    that runs off the surface, a malformed contact file. The input is never modified."""

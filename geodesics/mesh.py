@@ -16,6 +16,7 @@ Conventions (written here because every other module relies on them):
 
 from __future__ import annotations
 
+import hashlib
 import warnings
 from functools import cached_property
 
@@ -298,6 +299,14 @@ class TriMesh:
         )
 
     # ------------------------------------------------------------------ derived quantities
+
+    @cached_property
+    def topology_hash(self) -> str:
+        """SHA-256 of the vertex count and the faces: equal for every pose or shape of one topology, so
+        intrinsic data (surface points, contact files) made on one is valid on the others."""
+        digest = hashlib.sha256(np.int64(self.n_vertices).tobytes())
+        digest.update(np.ascontiguousarray(self._faces, dtype="<i8").tobytes())
+        return digest.hexdigest()
 
     @cached_property
     def halfedge_next(self) -> np.ndarray:

@@ -56,8 +56,11 @@ class SurfacePoints:
                 "do not "
                 f"sum to one (e.g. {bary[bad[0]].tolist()})"
             )
-        bary[bary < SNAP] = 0.0
-        bary /= bary.sum(1, keepdims=True)
+        tiny = bary < SNAP
+        bary[tiny] = 0.0
+        # Renormalize only rows that need it, so constructing from valid coordinates changes no bits.
+        off = tiny.any(1) | (np.abs(bary.sum(1) - 1) > 1e-14)
+        bary[off] /= bary[off].sum(1, keepdims=True)
         faces.setflags(write=False)
         bary.setflags(write=False)
         object.__setattr__(self, "faces", faces)
@@ -97,6 +100,32 @@ class SurfacePoints:
         d = X - mesh.vertices[mesh.faces[f, 0]]
         z = np.einsum("kj,kj->k", d, axes[:, 0]) + 1j * np.einsum("kj,kj->k", d, axes[:, 1])
         return cls(f, _clamped_bary(mesh.face_points[f], z))
+
+    @classmethod
+    def nearest(cls, mesh: TriMesh, positions) -> SurfacePoints:
+        """The closest surface point to each 3D position (exact: every face that could hold a closer
+        point is examined)."""
+        from scipy.spatial import cKDTree
+
+        X = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+        if not np.all(np.isfinite(X)):
+            raise MeshError("positions contain NaN or infinite values")
+        T = mesh.vertices[mesh.faces]
+        centroid = T.mean(1)
+        reach = np.linalg.norm(T - centroid[:, None], axis=2).max()  # no point of a face is farther out
+        tree = cKDTree(centroid)
+        _, guess = tree.query(X, k=min(8, mesh.n_faces))
+        guess = guess.reshape(len(X), -1)
+        bound = _distances_to_faces(mesh, np.repeat(np.arange(len(X)), guess.shape[1]), guess.ravel(), X)
+        bound = bound.reshape(len(X), -1).min(1)
+        # Any face with a point within `bound` has its centroid within bound + reach.
+        candidates = tree.query_ball_point(X, bound + reach)
+        point = np.repeat(np.arange(len(X)), [len(c) for c in candidates])
+        face = np.concatenate([np.asarray(c, np.int64) for c in candidates]) if len(X) else np.empty(0, int)
+        dist = _distances_to_faces(mesh, point, face, X)
+        order = np.lexsort((dist, point))
+        first = order[np.r_[True, point[order][1:] != point[order][:-1]]]
+        return cls.from_positions(mesh, face[first], X[point[first]])
 
     @staticmethod
     def concatenate(parts) -> SurfacePoints:
@@ -190,3 +219,9 @@ def _clamped_bary(P: np.ndarray, z: np.ndarray) -> np.ndarray:
         best[closer], best_d[closer] = cand[closer], d[closer]
     b[out] = best
     return b
+
+
+def _distances_to_faces(mesh: TriMesh, point: np.ndarray, face: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Distance from X[point[i]] to triangle face[i]."""
+    closest = SurfacePoints.from_positions(mesh, face, X[point]).positions(mesh)
+    return np.linalg.norm(closest - X[point], axis=1)
