@@ -1,0 +1,208 @@
+"""Contact sets: hierarchy (§4.3.4), hierarchical transfer, pairing, and the JSON contact file."""
+
+import json
+
+import numpy as np
+import pytest
+
+from geodesics import (
+    ContactError,
+    ContactPatch,
+    ContactSet,
+    SurfacePoints,
+    farthest_pair_axis,
+    log_map,
+    medial_axis,
+)
+from geodesics.primitives import cylinder, grid_plane
+
+
+def nearest(mesh, xyz):
+    return SurfacePoints.nearest(mesh, np.atleast_2d(xyz))
+
+
+def disk(mesh, centre, radius, n, seed):
+    rng = np.random.default_rng(seed)
+    points = SurfacePoints(rng.integers(0, mesh.n_faces, 80 * n), rng.dirichlet([2.0, 2.0, 2.0], 80 * n))
+    X = points.positions(mesh)
+    return points[np.flatnonzero(np.linalg.norm(X[:, :2] - centre, axis=1) < radius)[:n]]
+
+
+@pytest.fixture(scope="module")
+def plane():
+    return grid_plane(40, 40, size=(2.0, 2.0), jitter=0.2, seed=11)
+
+
+@pytest.fixture(scope="module")
+def hand(plane):
+    """A palm with two finger-tip patches parented to it, and a nail patch under one tip."""
+    s = ContactSet(plane)
+    for name, centre, radius in (
+        ("palm", [0.8, 0.8], 0.2),
+        ("index", [1.15, 0.7], 0.07),
+        ("thumb", [0.6, 1.1], 0.07),
+    ):
+        points = disk(plane, centre, radius, 300, seed=len(name))
+        s = s.add(name, ContactPatch(plane, points, farthest_pair_axis(plane, points)))
+    points = disk(plane, [1.25, 0.75], 0.03, 60, seed=99)
+    s = s.add("nail", ContactPatch(plane, points, farthest_pair_axis(plane, points)))
+    return s.parent("index", "palm").parent("thumb", "palm").parent("nail", "index")
+
+
+def test_editing_a_parent_carries_its_children_rigidly_on_a_plane(hand, plane):
+    moved = hand.translate("palm", nearest(plane, [1.0, 1.05, 0]))
+    shift = moved["palm"].positions() - hand["palm"].positions()
+    for name in ("index", "thumb", "nail"):
+        delta = moved[name].positions() - hand[name].positions()
+        np.testing.assert_allclose(delta, np.broadcast_to(shift[0], delta.shape), atol=1e-12)
+    turned = hand.rotate("palm", 0.5)
+    o = hand["palm"].axis.start.positions(plane)[0]
+    for name in ("palm", "index", "nail"):
+        rel0 = (hand[name].positions() - o)[:, :2] @ [1, 1j]
+        rel1 = (turned[name].positions() - o)[:, :2] @ [1, 1j]
+        np.testing.assert_allclose(rel1, rel0 * np.exp(0.5j), atol=1e-12)
+
+
+def test_links_keep_their_geodesic_length(hand):
+    edited = hand.rotate("palm", 1.1).bend("index", 2, 0.3)
+    for child, link in hand.links.items():
+        start_parent, start_child = edited[link.parent].axis.start, edited[child].axis.start
+        assert abs(log_map(edited.mesh, start_parent, start_child)[0]) == pytest.approx(
+            link.length, rel=1e-12
+        )
+
+
+def test_editing_a_child_leaves_parent_and_siblings(hand):
+    edited = hand.rotate("index", 0.7)
+    for name in ("palm", "thumb"):
+        np.testing.assert_array_equal(edited[name].positions(), hand[name].positions())
+    assert not np.allclose(edited["nail"].positions(), hand["nail"].positions())
+
+
+def test_hierarchy_rules(hand):
+    with pytest.raises(ContactError, match="cycle"):
+        hand.parent("palm", "nail")
+    with pytest.raises(ContactError, match="already exists"):
+        hand.add("palm", hand["palm"])
+    with pytest.raises(ContactError, match="no patch named 'ring'"):
+        hand.rotate("ring", 0.1)
+    without = hand.remove("index")
+    assert "nail" in without and "nail" not in without.links  # children stay, unlinked
+    assert hand.descendants("palm") == ["index", "nail", "thumb"]
+    assert set(hand.unparent("thumb").links) == {"index", "nail"}
+
+
+def test_hierarchical_transfer_pairs_and_keeps_the_arrangement(hand):
+    prism = cylinder(radius=0.9, height=3.0, n_around=40, n_along=40, jitter=0.2, seed=3)
+    start = nearest(prism, [0.9 * np.cos(0.05), 0.9 * np.sin(0.05), 1.5])
+    source, target = hand.transfer("palm", ContactSet(prism), start, 1j, rename=lambda n: f"{n}@mug")
+    assert set(target) == {"palm@mug", "index@mug", "thumb@mug", "nail@mug"}
+    assert source.pairs["index"] == "index@mug" and target.pairs["index@mug"] == "index"
+    assert target.links["nail@mug"].parent == "index@mug"
+    for child, link in hand.links.items():
+        parent_start = target[f"{link.parent}@mug"].axis.start
+        got = abs(log_map(prism, parent_start, target[f"{child}@mug"].axis.start)[0])
+        assert got == pytest.approx(link.length, rel=1e-9)  # the prism is developable
+    # editing the transferred tree carries its children there too
+    moved = target.rotate("palm@mug", 0.3)
+    assert not np.allclose(moved["nail@mug"].positions(), target["nail@mug"].positions())
+    with pytest.raises(ContactError, match="already has"):
+        hand.transfer("palm", target, start, 1j, rename=lambda n: f"{n}@mug")
+
+
+def test_file_round_trip(hand, tmp_path):
+    path = tmp_path / "hand.json"
+    paired = hand.pair("palm", "palm@mug")
+    paired.save(path)
+    loaded = ContactSet.load(path, hand.mesh)
+    assert list(loaded) == list(paired) and dict(loaded.pairs) == dict(paired.pairs)
+    for name in paired:
+        np.testing.assert_array_equal(loaded[name].points.faces, paired[name].points.faces)
+        np.testing.assert_allclose(loaded[name].positions(), paired[name].positions(), atol=1e-15)
+        np.testing.assert_allclose(loaded[name].coords, paired[name].coords, atol=1e-15)
+    np.testing.assert_allclose(
+        loaded.rotate("palm", 0.4)["nail"].positions(),
+        paired.rotate("palm", 0.4)["nail"].positions(),
+        atol=1e-12,
+    )
+    assert [p.name for p in tmp_path.iterdir()] == ["hand.json"]  # no temporary file left behind
+
+
+def test_files_for_another_mesh_are_refused_unless_remapped(hand, tmp_path):
+    path = tmp_path / "hand.json"
+    hand.save(path)
+    other = grid_plane(37, 33, size=(2.0, 2.0), jitter=0.2, seed=12)  # the same plane, meshed differently
+    with pytest.raises(ContactError, match=r"another mesh.*remap"):
+        ContactSet.load(path, other)
+    remapped = ContactSet.load(path, other, remap=True)
+    for name in hand:
+        np.testing.assert_allclose(remapped[name].positions(), hand[name].positions(), atol=1e-12)
+    assert remapped.links["nail"].length == pytest.approx(hand.links["nail"].length, rel=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda d: d.update(format="something else"), "not a contact file"),
+        (lambda d: d.update(version=99), "version 99 is not supported"),
+        (lambda d: d.pop("patches"), "'patches' is missing"),
+        (
+            lambda d: d["patches"][0].update(points={"faces": [10**9], "bary": [[1, 0, 0]]}),
+            "patch 'palm'.*faces",
+        ),
+        (
+            lambda d: d["patches"][0].update(points={"faces": [0], "bary": [[0.5, 0.6, 0.1]]}),
+            "patch 'palm'.*sum",
+        ),
+        (lambda d: d["patches"][0]["axis"].update(lengths=[-1.0]), "patch 'palm'.*lengths"),
+        (lambda d: d["patches"][0].update(binding=[0] * 3), "patch 'palm'.*binding"),
+        (lambda d: d["patches"][1].update(parent="wrist"), "parent 'wrist'"),
+        (lambda d: d["patches"][1].update(name="palm"), "used twice"),
+        (lambda d: d["patches"][0]["axis"].update(turning=[[2.0, 0.0]]), "patch 'palm'"),
+        (lambda d: d["patches"][1].update(link={"length": "far"}), "link.length"),
+    ],
+)
+def test_malformed_files_get_clear_errors(hand, tmp_path, change, message):
+    data = hand.to_dict()
+    change(data)
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(ContactError, match=message):
+        ContactSet.load(path, hand.mesh)
+
+
+def test_unreadable_files_get_clear_errors(hand, tmp_path):
+    with pytest.raises(ContactError, match="cannot read"):
+        ContactSet.load(tmp_path / "missing.json", hand.mesh)
+    garbage = tmp_path / "garbage.json"
+    garbage.write_bytes(b"\x00\xff{not json")
+    with pytest.raises(ContactError, match="cannot read"):
+        ContactSet.load(garbage, hand.mesh)
+
+
+# ------------------------------------------------------------------------------------------ default axes
+
+
+def test_farthest_pair_axis_joins_the_diameter(plane):
+    rng = np.random.default_rng(5)
+    pool = SurfacePoints(rng.integers(0, plane.n_faces, 40000), rng.dirichlet([2.0, 2.0, 2.0], 40000))
+    X = pool.positions(plane)
+    ellipse = ((X[:, 0] - 1.0) / 0.45) ** 2 + ((X[:, 1] - 1.0) / 0.12) ** 2 < 1  # a well-defined diameter
+    for inside, tolerance in ((ellipse, 1e-12), (np.linalg.norm(X[:, :2] - 1.0, axis=1) < 0.3, 0.02)):
+        points = pool[np.flatnonzero(inside)[:400]]
+        P = points.positions(plane)
+        diameter = np.linalg.norm(P[:, None] - P[None], axis=2).max()
+        axis = farthest_pair_axis(plane, points)
+        assert axis.length == pytest.approx(diameter, rel=tolerance)  # near-diametral on a disk
+        ends = axis.points[[0, len(axis) - 1]].positions(plane)
+        assert np.min(np.linalg.norm(P[:, None] - ends[None], axis=2), axis=0).max() < 1e-12
+
+
+def test_medial_axis_of_a_strip_runs_along_its_middle(plane):
+    V = plane.vertices
+    strip = np.flatnonzero((V[:, 0] > 0.3) & (V[:, 0] < 1.7) & (V[:, 1] > 0.8) & (V[:, 1] < 1.2))
+    axis = medial_axis(plane, SurfacePoints.from_vertices(plane, strip))
+    X = axis.points.positions(plane)
+    assert np.abs(X[:, 1] - 1.0).max() < 0.05
+    assert X[:, 0].min() < 0.6 and X[:, 0].max() > 1.4
+    assert np.all(np.diff(X[:, 0]) > 0) or np.all(np.diff(X[:, 0]) < 0)  # one pass along the strip
