@@ -17,7 +17,7 @@ from .exact import GeodesicField
 from .maps import log_map
 from .points import SurfacePoints
 from .primitives import torus
-from .tangent import tangent_to_3d
+from .tangent import tangent_from_3d, tangent_to_3d
 from .trace import exp_map
 
 
@@ -161,6 +161,80 @@ def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | Non
             note=f"peak memory of mesh and tracing: {peak / 2**30:.2f} GiB",
         )
     )
+    return rows
+
+
+def run_contacts(repeat: int = 5, progress: Callable[[str], None] | None = None) -> list[Row]:
+    """Time the contact model: a 2,000-point patch on a 20k-face mesh (parameterize, transfer and the
+    interactive edits) and a bulk atlas transfer of 100,000 contacts."""
+    from .atlas import ContactAtlas
+    from .axis import Axis
+    from .default_axes import farthest_pair_axis
+    from .patch import ContactPatch
+    from .primitives import icosphere, scan_like_torus
+
+    say = progress or (lambda _msg: None)
+    rows: list[Row] = []
+    mesh = torus(n_major=140, n_minor=72)
+    rng = np.random.default_rng(1)
+    pool = _random_points(mesh, 400_000, rng)
+    centre = SurfacePoints.nearest(mesh, [[1.0, 0.0, 0.35]])
+    near = np.argsort(GeodesicField(mesh, centre, max_distance=0.6).query(pool).distances)[:2000]
+    points = pool[near]
+
+    say("parameterize")
+    axis = farthest_pair_axis(mesh, points)
+    ours = _median_time(lambda: ContactPatch(mesh, points, axis), repeat)
+    rows.append(Row(f"parameterize a {len(points)}-point patch ({len(axis)} axis points, exact)", ours))
+    patch = ContactPatch(mesh, points, axis)
+
+    say("edits")
+    step = mesh.mean_edge_length
+    drag = SurfacePoints.nearest(mesh, axis.start.positions(mesh) + np.array([0.0, 0.0, 2 * step]))
+    rows.append(
+        Row(
+            "translate by a mouse step (two edge lengths)",
+            _median_time(lambda: patch.translate(drag), repeat),
+        )
+    )
+    rows.append(Row("rotate", _median_time(lambda: patch.rotate(0.1), repeat)))
+    rows.append(
+        Row("bend at the middle axis point", _median_time(lambda: patch.bend(len(axis) // 2, 0.2), repeat))
+    )
+    sphere = icosphere(5, radius=1.5)
+    start = SurfacePoints.nearest(sphere, [[0.0, 0.0, 1.5]])
+    rows.append(Row(
+        f"transfer onto another 20k-face mesh (icosphere, {sphere.n_faces} faces)",
+        _median_time(lambda: patch.transfer(sphere, start, 1.0), repeat),
+    ))  # fmt: skip
+
+    say("atlas")
+    count = 100_000
+    spread = GeodesicField(mesh, centre, max_distance=1.5).query(pool).distances
+    contacts = pool[np.argsort(spread)[:count]]  # the 100,000 nearest: the "hand" around the curves
+    ends = [
+        ((1.0, 0.0, 0.35), (0.8, 0.6, 0.3)),
+        ((1.0, 0.0, -0.35), (0.8, -0.6, -0.3)),
+        ((1.3, 0.2, 0.0), (1.1, 0.8, 0.0)),
+    ]
+    curves = {
+        f"curve {i}": Axis.between(mesh, SurfacePoints.nearest(mesh, [a]), SurfacePoints.nearest(mesh, [b]))
+        for i, (a, b) in enumerate(ends)
+    }
+    atlas = ContactAtlas(mesh, curves)
+    target = scan_like_torus(10_070, seed=3)  # another triangulation of the same torus, ~20k faces
+    placements = {}
+    for name, curve in curves.items():
+        where = SurfacePoints.nearest(target, curve.start.positions(mesh))
+        placements[name] = (
+            where,
+            tangent_from_3d(target, where, tangent_to_3d(mesh, curve.start, curve.direction))[0],
+        )
+    laid = atlas.lay_out(target, placements)
+    ours = _median_time(
+        lambda: atlas.transfer(contacts, laid, radial_scale={"curve 0": 1.2}), max(1, repeat // 2)
+    )
+    rows.append(Row(f"atlas transfer of {len(contacts):,} contacts (3 curves, onto a scan-like torus)", ours))
     return rows
 
 
