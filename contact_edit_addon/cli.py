@@ -3,6 +3,8 @@
 Subcommands:
 
 * ``bench geodesics`` — time the geodesic core side by side with potpourri3d and pygeodesic.
+* ``bench contacts`` — time the contact model (parameterize, edits, transfer, atlas).
+* ``build-extension`` — build the Blender extension zips, with every run-time dependency as wheels.
 """
 
 from __future__ import annotations
@@ -11,19 +13,38 @@ import argparse
 import sys
 
 
+def _progress(what: str) -> None:
+    print(f"  {what} ...", file=sys.stderr, flush=True)
+
+
 def _bench(args: argparse.Namespace) -> int:
     from geodesics import benchmark
 
-    print(
-        f"contact-edit bench geodesics: median of {args.repeat} runs after {benchmark.WARMUP} untimed ones",
-        flush=True,
-    )
-    rows = benchmark.run(
-        repeat=args.repeat,
-        rays=args.rays,
-        progress=lambda what: print(f"  running {what} ...", file=sys.stderr, flush=True),
-    )
+    runs = f"median of {args.repeat} runs after {benchmark.WARMUP} untimed ones"
+    print(f"contact-edit bench {args.target}: {runs}", flush=True)
+    if args.target == "geodesics":
+        rows = benchmark.run(repeat=args.repeat, rays=args.rays, progress=_progress)
+    else:
+        rows = benchmark.run_contacts(repeat=args.repeat, progress=_progress)
     print(benchmark.format_table(rows))
+    return 0
+
+
+def _build_extension(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from . import build
+
+    platforms = (
+        list(build.PLATFORM_TAGS) if args.all_platforms else args.platform or list(build.DEFAULT_PLATFORMS)
+    )
+    try:
+        paths = build.build_extension(Path(args.output), platforms=platforms, progress=_progress)
+    except build.BuildError as err:
+        print(f"contact-edit build-extension: {err}", file=sys.stderr)
+        return 1
+    for path in paths:
+        print(path)
     return 0
 
 
@@ -31,10 +52,18 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="contact-edit", description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True)
     bench = commands.add_parser("bench", help="run a benchmark and print its table")
-    bench.add_argument("target", choices=["geodesics"], help="what to benchmark")
+    bench.add_argument("target", choices=["geodesics", "contacts"], help="what to benchmark")
     bench.add_argument("--repeat", type=int, default=7, help="runs per timing (the median is shown)")
     bench.add_argument("--rays", type=int, default=2000, help="rays / targets per query")
     bench.set_defaults(run=_bench)
+    ext = commands.add_parser("build-extension", help="build the Blender extension zips (one per platform)")
+    ext.add_argument("--output", "-o", default="dist", help="folder for the zips (default: dist)")
+    ext.add_argument(
+        "--platform", action="append", choices=["linux-x64", "windows-x64", "macos-arm64", "macos-x64"],
+        help="a platform to build for (repeatable; default: linux-x64)",
+    )  # fmt: skip
+    ext.add_argument("--all-platforms", action="store_true", help="build for every supported platform")
+    ext.set_defaults(run=_build_extension)
     return parser
 
 

@@ -1,0 +1,33 @@
+"""Add-on preferences: the defaults new scenes start from."""
+
+import bpy
+
+
+class CONTACT_EDIT_AP_preferences(bpy.types.AddonPreferences):
+    bl_idname = __package__
+
+    weight_distance: bpy.props.FloatProperty(
+        name="Distance weight",
+        description="λd: how strongly contact points are pulled together (paper default 1)",
+        default=1.0,
+        min=0.0,
+    )
+    weight_normal: bpy.props.FloatProperty(
+        name="Normal weight",
+        description="λn: how strongly paired surfaces are turned to face each other (paper default 1)",
+        default=1.0,
+        min=0.0,
+    )
+    weight_prior: bpy.props.FloatProperty(
+        name="Rest pose weight",
+        description="λp: how strongly joints are kept near the rest pose (paper default 10)",
+        default=10.0,
+        min=0.0,
+    )
+
+    def draw(self, context):
+        column = self.layout.column()
+        column.label(text="Default contact solver weights (Contact Edit, Eq. 2)")
+        column.prop(self, "weight_distance")
+        column.prop(self, "weight_normal")
+        column.prop(self, "weight_prior")
