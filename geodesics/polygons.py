@@ -94,7 +94,9 @@ def triangulate_polygons(vertices: np.ndarray, polygons) -> tuple[np.ndarray, np
     Parameters
     ----------
     vertices : (n, 3) float array
-    polygons : sequence of int sequences, or (p, s) int array
+    polygons : sequence of int sequences, (p, s) int array, or ``(corner_vertices, sizes)``
+        The last form is Blender's flat layout: every polygon's vertex indices one after another (L,)
+        and each polygon's corner count (p,).
 
     Returns
     -------
@@ -102,42 +104,39 @@ def triangulate_polygons(vertices: np.ndarray, polygons) -> tuple[np.ndarray, np
     polygon : (m,) int64, the polygon each triangle comes from
     corners : (m, 3) int64, each triangle corner's index within its polygon
     """
-    if isinstance(polygons, np.ndarray) and polygons.ndim == 2:
-        polys = [np.asarray(p, dtype=np.int64) for p in polygons]
-    else:
-        try:
-            polys = [np.asarray(p, dtype=np.int64).ravel() for p in polygons]
-        except (TypeError, ValueError) as err:
-            raise MeshError(f"polygons must be sequences of vertex indices: {err}") from None
-    if not polys:
+    flat, sizes = _flat_polygons(polygons)
+    if sizes.size == 0:
         raise MeshError("the mesh has no faces")
-    sizes = np.array([p.size for p in polys])
     small = np.flatnonzero(sizes < 3)
     if small.size:
         raise MeshError(f"polygons {describe_ids(small)} have fewer than three corners", faces=small)
     n = len(vertices)
-    flat = np.concatenate(polys)
-    if flat.size and (flat.min() < 0 or flat.max() >= n):
-        offsets = np.repeat(np.arange(len(polys)), sizes)
-        bad = np.unique(offsets[(flat < 0) | (flat >= n)])
-        raise MeshError(f"polygons {describe_ids(bad)} use vertex indices outside 0..{n - 1}", faces=bad)
-
+    bad = (flat < 0) | (flat >= n)
+    if np.any(bad):
+        owner = np.repeat(np.arange(sizes.size), sizes)
+        bad_polygons = np.unique(owner[bad])
+        raise MeshError(
+            f"polygons {describe_ids(bad_polygons)} use vertex indices outside 0..{n - 1}", faces=bad_polygons
+        )
+    start = np.concatenate([[0], np.cumsum(sizes)[:-1]])
     faces, polygon, corners = [], [], []
     tri = np.flatnonzero(sizes == 3)
     if tri.size:
-        faces.append(np.stack([polys[i] for i in tri]))
+        local = np.tile([0, 1, 2], (tri.size, 1))
+        faces.append(flat[start[tri, None] + local])
         polygon.append(tri)
-        corners.append(np.tile([0, 1, 2], (tri.size, 1)))
+        corners.append(local)
     quad = np.flatnonzero(sizes == 4)
     if quad.size:
-        Q = np.stack([polys[i] for i in quad])
+        Q = flat[start[quad, None] + np.arange(4)]
         local = _split_quads(vertices, Q)  # (q, 2, 3)
         faces.append(np.take_along_axis(Q[:, None, :], local, axis=2).reshape(-1, 3))
         polygon.append(np.repeat(quad, 2))
         corners.append(local.reshape(-1, 3))
     for i in np.flatnonzero(sizes > 4):
-        local = np.array(_ear_clip(vertices[polys[i]]), dtype=np.int64)
-        faces.append(polys[i][local])
+        ring = flat[start[i] : start[i] + sizes[i]]
+        local = np.array(_ear_clip(vertices[ring]), dtype=np.int64)
+        faces.append(ring[local])
         polygon.append(np.full(len(local), i))
         corners.append(local)
     polygon = np.concatenate(polygon)
@@ -147,3 +146,24 @@ def triangulate_polygons(vertices: np.ndarray, polygons) -> tuple[np.ndarray, np
         polygon[order].astype(np.int64),
         np.concatenate(corners)[order].astype(np.int64),
     )
+
+
+def _flat_polygons(polygons) -> tuple[np.ndarray, np.ndarray]:
+    """Any accepted polygon layout as (corner vertex indices, corner counts)."""
+    if isinstance(polygons, tuple) and len(polygons) == 2 and not np.isscalar(polygons[1]):
+        flat, sizes = (np.asarray(a) for a in polygons)
+        if flat.ndim == 1 and sizes.ndim == 1:
+            if not (np.issubdtype(flat.dtype, np.integer) and np.issubdtype(sizes.dtype, np.integer)):
+                raise MeshError("corner vertices and polygon sizes must be integers")
+            if sizes.sum() != flat.size:
+                raise MeshError(f"polygon sizes add up to {sizes.sum()} corners, but {flat.size} are given")
+            return flat.astype(np.int64), sizes.astype(np.int64)
+    if isinstance(polygons, np.ndarray) and polygons.ndim == 2:
+        return polygons.astype(np.int64).ravel(), np.full(len(polygons), polygons.shape[1], np.int64)
+    try:
+        polys = [np.asarray(p, dtype=np.int64).ravel() for p in polygons]
+    except (TypeError, ValueError) as err:
+        raise MeshError(f"polygons must be sequences of vertex indices: {err}") from None
+    if not polys:
+        return np.empty(0, np.int64), np.empty(0, np.int64)
+    return np.concatenate(polys), np.array([p.size for p in polys], np.int64)

@@ -243,3 +243,19 @@ def test_triangulate_polygons_directly():
     np.testing.assert_array_equal(polygon, [0, 0, 0, 0, 1])
     np.testing.assert_array_equal(faces[-1], [0, 1, 2])
     check_tiling(L_HEXAGON, L_HEXAGON[faces[:4]])
+
+
+def test_blender_flat_layout_matches_the_list_layout():
+    """Blender stores polygons as one flat array of corner vertices and a corner count per polygon."""
+    rng = np.random.default_rng(12)
+    V = rng.random((20, 3))
+    V[:, 2] = 0.0
+    polygons = [[0, 1, 2], [3, 4, 5, 6], [7, 8, 9, 10, 11], [12, 13, 14]]
+    flat = np.concatenate(polygons)
+    sizes = np.array([len(p) for p in polygons])
+    a = triangulate_polygons(V, polygons)
+    b = triangulate_polygons(V, (flat, sizes))
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)
+    with pytest.raises(MeshError, match="add up to 15 corners, but 14"):
+        triangulate_polygons(V, (flat[:-1], sizes))
