@@ -1,9 +1,24 @@
-"""Registering and unregistering every class of the add-on, in dependency order."""
+"""Registering and unregistering everything, in dependency order (and the reverse)."""
 
 import bpy
 
+from . import keymaps, operators, overlays, panels, properties
 from .preferences import CONTACT_EDIT_AP_preferences
 
-classes = (CONTACT_EDIT_AP_preferences,)
+classes = (CONTACT_EDIT_AP_preferences, *properties.classes, *operators.classes, *panels.classes)
 
-register, unregister = bpy.utils.register_classes_factory(classes)
+
+def register() -> None:
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    properties.register()
+    overlays.register()
+    keymaps.register()
+
+
+def unregister() -> None:
+    keymaps.unregister()
+    overlays.unregister()
+    properties.unregister()
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

@@ -224,13 +224,15 @@ class ContactSet:
         start: SurfacePoints,
         direction: complex,
         rename: Callable[[str], str] = lambda name: name,
+        hierarchy: bool = True,
     ) -> tuple[ContactSet, ContactSet]:
-        """Transfer patch ``name`` and, hierarchically, its descendants onto ``target``'s mesh as mirror
-        images (§5.3), pairing each with its transfer.
+        """Transfer patch ``name`` and (if ``hierarchy``) its descendants onto ``target``'s mesh as
+        mirror images (§5.3), pairing each with its transfer.
 
         Returns the updated (this set, target set). Nothing changes if any transfer fails.
         """
-        names = [name, *self.descendants(name)]
+        self[name]  # a clear error for an unknown name
+        names = [name, *self.descendants(name)] if hierarchy else [name]
         taken = [rename(n) for n in names if rename(n) in target]
         if taken:
             raise ContactError(f"the target already has patches named {', '.join(taken)}")

@@ -206,3 +206,11 @@ def test_medial_axis_of_a_strip_runs_along_its_middle(plane):
     assert np.abs(X[:, 1] - 1.0).max() < 0.05
     assert X[:, 0].min() < 0.6 and X[:, 0].max() > 1.4
     assert np.all(np.diff(X[:, 0]) > 0) or np.all(np.diff(X[:, 0]) < 0)  # one pass along the strip
+
+
+def test_transfer_without_the_hierarchy_moves_one_patch(hand):
+    prism = cylinder(radius=0.9, height=3.0, n_around=40, n_along=40, jitter=0.2, seed=3)
+    start = nearest(prism, [0.9 * np.cos(0.05), 0.9 * np.sin(0.05), 1.5])
+    source, target = hand.transfer("palm", ContactSet(prism), start, 1j, hierarchy=False)
+    assert list(target) == ["palm"] and dict(source.pairs) == {"palm": "palm"}
+    assert dict(source.links) == dict(hand.links)

@@ -1,0 +1,126 @@
+"""The one place where Blender data becomes the libraries' numpy types and back.
+
+Meshes: the rest shape of a mesh object (its own vertices, no modifiers) or, when asked, its evaluated
+deformed shape, triangulated by :meth:`geodesics.TriMesh.from_polygons` (our triangulation, so that
+intrinsic data stays valid however Blender triangulates for display). Meshes are cached by a
+fingerprint of their topology and coordinates, so repeated operations on an unchanged mesh are cheap.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import bpy
+import numpy as np
+
+from geodesics import MeshError, SurfacePoints, TriMesh
+
+_cache: dict[tuple, TriMesh] = {}
+_CACHE_SIZE = 8
+
+
+class BridgeError(RuntimeError):
+    """Blender data that cannot be turned into what the libraries need, in an animator's words."""
+
+
+def mesh_arrays(mesh: bpy.types.Mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vertex positions (n, 3), polygon corner vertices (L,) and corner counts (p,) of a mesh."""
+    vertices = np.empty(3 * len(mesh.vertices), np.float64)
+    mesh.vertices.foreach_get("co", vertices)
+    corners = np.empty(len(mesh.loops), np.int64)
+    mesh.loops.foreach_get("vertex_index", corners)
+    sizes = np.empty(len(mesh.polygons), np.int64)
+    mesh.polygons.foreach_get("loop_total", sizes)
+    return vertices.reshape(-1, 3), corners, sizes
+
+
+def trimesh(obj: bpy.types.Object, deformed: bool = False, depsgraph=None) -> TriMesh:
+    """The object's surface as a TriMesh, in object space: its rest shape, or its evaluated (deformed)
+    shape when ``deformed`` (which must keep the topology).
+
+    Raises BridgeError with the object's name and what is wrong (no mesh, no faces, non-manifold...).
+    """
+    if obj is None or obj.type != "MESH":
+        raise BridgeError(f"'{getattr(obj, 'name', None)}' is not a mesh object")
+    mesh = obj.data
+    if deformed:
+        depsgraph = depsgraph or bpy.context.evaluated_depsgraph_get()
+        evaluated = obj.evaluated_get(depsgraph)
+        mesh = evaluated.to_mesh()
+    try:
+        vertices, corners, sizes = mesh_arrays(mesh)
+    finally:
+        if deformed:
+            evaluated.to_mesh_clear()
+    if sizes.size == 0:
+        raise BridgeError(f"'{obj.name}' has no faces to put contacts on")
+    if deformed and (len(vertices) != len(obj.data.vertices) or sizes.size != len(obj.data.polygons)):
+        raise BridgeError(
+            f"the modifiers of '{obj.name}' change its topology, so its deformed shape cannot carry "
+            "contacts; use the rest shape or apply the modifiers"
+        )
+    key = (obj.name, deformed, _fingerprint(vertices, corners, sizes))
+    if key not in _cache:
+        try:
+            _cache[key] = TriMesh.from_polygons(vertices, (corners, sizes))
+        except MeshError as err:
+            raise BridgeError(f"'{obj.name}' cannot carry contacts: {err}") from err
+        while len(_cache) > _CACHE_SIZE:
+            _cache.pop(next(iter(_cache)))
+    return _cache[key]
+
+
+def _fingerprint(*arrays: np.ndarray) -> str:
+    digest = hashlib.blake2b(digest_size=16)
+    for a in arrays:
+        digest.update(np.ascontiguousarray(a).tobytes())
+    return digest.hexdigest()
+
+
+def selected_vertices(obj: bpy.types.Object) -> np.ndarray:
+    """Indices of the selected vertices of a mesh object (its stored selection; flush edit mode first)."""
+    flags = np.empty(len(obj.data.vertices), bool)
+    obj.data.vertices.foreach_get("select", flags)
+    return np.flatnonzero(flags)
+
+
+def points_from_vertices(obj: bpy.types.Object, mesh: TriMesh, vertices: np.ndarray) -> SurfacePoints:
+    """Surface points on the given vertices of ``obj``."""
+    if len(vertices) == 0:
+        raise BridgeError(f"no vertices of '{obj.name}' are selected")
+    try:
+        return SurfacePoints.from_vertices(mesh, vertices)
+    except MeshError as err:
+        raise BridgeError(f"'{obj.name}': {err}") from err
+
+
+def points_from_hits(mesh: TriMesh, polygons: np.ndarray, locations: np.ndarray) -> SurfacePoints:
+    """Surface points where rays hit polygons (Blender's ray_cast gives a polygon index and an
+    object-space location): each is placed in the triangle of its polygon that holds it."""
+    polygons = np.asarray(polygons, np.int64)
+    locations = np.asarray(locations, np.float64).reshape(-1, 3)
+    owner = mesh.triangle_polygon
+    start = np.searchsorted(owner, polygons)
+    count = np.searchsorted(owner, polygons, side="right") - start
+    candidates = start[:, None] + np.arange(count.max(initial=1))
+    candidates = np.where(np.arange(candidates.shape[1]) < count[:, None], candidates, start[:, None])
+    k, c = candidates.shape
+    trial = SurfacePoints.from_positions(mesh, candidates.ravel(), np.repeat(locations, c, axis=0))
+    gap = np.linalg.norm(trial.positions(mesh) - np.repeat(locations, c, axis=0), axis=1).reshape(k, c)
+    best = np.argmin(gap, axis=1)
+    pick = np.arange(k) * c + best
+    return SurfacePoints(trial.faces[pick], trial.bary[pick])
+
+
+def world_to_object(obj: bpy.types.Object, points) -> np.ndarray:
+    """World-space positions (k, 3) in the object's local space."""
+    M = np.array(obj.matrix_world.inverted())
+    X = np.asarray(points, np.float64).reshape(-1, 3)
+    return X @ M[:3, :3].T + M[:3, 3]
+
+
+def object_to_world(obj: bpy.types.Object, points) -> np.ndarray:
+    """Object-space positions (k, 3) in world space."""
+    M = np.array(obj.matrix_world)
+    X = np.asarray(points, np.float64).reshape(-1, 3)
+    return X @ M[:3, :3].T + M[:3, 3]

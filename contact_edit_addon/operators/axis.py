@@ -1,0 +1,86 @@
+"""Set a patch's axis: pick its start and end (every edge crossing between becomes an axis point), or
+reset it to a default axis (§6.2)."""
+
+from __future__ import annotations
+
+import bpy
+
+from geodesics import Axis, farthest_pair_axis, medial_axis
+
+from .. import store
+from .common import guarded, mesh_object, nearest_point, poll_patch, ray_hit
+
+
+class CONTACT_EDIT_OT_axis(bpy.types.Operator):
+    """Set the axis of a contact patch (pick start and end on the surface, or use a default)"""
+
+    bl_idname = "contact_edit.axis"
+    bl_label = "Set Contact Axis"
+    bl_options = {"REGISTER", "UNDO"}
+
+    patch: bpy.props.StringProperty(name="Patch", description="Patch name (default: the active patch)")
+    object_name: bpy.props.StringProperty(name="Object", description="The patch's object (default: active)")
+    method: bpy.props.EnumProperty(
+        name="Axis",
+        items=[
+            ("POINTS", "Start and end", "The shortest geodesic from a start point to an end point"),
+            ("FARTHEST", "Farthest points", "The geodesic between the patch's two farthest points"),
+            ("MEDIAL", "Medial axis", "The patch's smoothed medial axis"),
+        ],
+        default="POINTS",
+    )
+    start: bpy.props.FloatVectorProperty(name="Start", size=3, subtype="TRANSLATION")
+    end: bpy.props.FloatVectorProperty(name="End", size=3, subtype="TRANSLATION")
+
+    @classmethod
+    def poll(cls, context):
+        return poll_patch(cls, context)
+
+    def invoke(self, context, event):
+        if self.method != "POINTS" or context.area is None or context.area.type != "VIEW_3D":
+            return self.execute(context)
+        self._obj = mesh_object(context, self.object_name or None)
+        self._picked = 0
+        context.window_manager.modal_handler_add(self)
+        context.area.header_text_set("Axis: click its start, then its end · Esc cancels")
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        if event.type in {"ESC", "RIGHTMOUSE"}:
+            context.area.header_text_set(None)
+            return {"CANCELLED"}
+        if event.type == "LEFTMOUSE" and event.value == "PRESS":
+            hit = ray_hit(context, event, self._obj)
+            if hit is not None:
+                if self._picked == 0:
+                    self.start = hit[0]
+                else:
+                    self.end = hit[0]
+                self._picked += 1
+            if self._picked == 2:
+                context.area.header_text_set(None)
+                return self.execute(context)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context):
+        return guarded(self, lambda: self._set_axis(context))
+
+    def _set_axis(self, context):
+        obj = mesh_object(context, self.object_name or None)
+        contacts = store.load(obj)
+        name = self.patch or store.active_patch_name(obj)
+        patch, mesh = contacts[name], contacts.mesh
+        if self.method == "POINTS":
+            axis = Axis.between(
+                mesh, nearest_point(obj, mesh, self.start), nearest_point(obj, mesh, self.end)
+            )
+        elif self.method == "MEDIAL":
+            axis = medial_axis(mesh, patch.points)
+        else:
+            axis = farthest_pair_axis(mesh, patch.points)
+        store.save(obj, contacts.replace(name, patch.with_axis(axis)))
+        self.report({"INFO"}, f"'{name}' now has an axis of {len(axis)} points")
+        return {"FINISHED"}
+
+
+classes = (CONTACT_EDIT_OT_axis,)

@@ -1,0 +1,91 @@
+"""What the operators share: reporting library errors, picking points with the mouse, directions."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import bpy
+import numpy as np
+from bpy_extras import view3d_utils
+
+from geodesics import ContactError, GeodesicError, MeshError, SurfacePoints, tangent_from_3d
+
+from .. import bridge
+
+#: Errors the libraries raise for bad input; the operators report them instead of failing.
+USER_ERRORS = (ContactError, GeodesicError, MeshError, bridge.BridgeError)
+
+
+def guarded(operator: bpy.types.Operator, action: Callable[[], set]) -> set:
+    """Run ``action``; report a library error as an operator error and cancel (changing nothing)."""
+    try:
+        return action()
+    except USER_ERRORS as err:
+        operator.report({"ERROR"}, str(err))
+        return {"CANCELLED"}
+
+
+def unique_name(existing, base: str) -> str:
+    if base not in existing:
+        return base
+    i = 1
+    while f"{base}.{i:03d}" in existing:
+        i += 1
+    return f"{base}.{i:03d}"
+
+
+def mesh_object(context, name: str | None = None):
+    """The named mesh object, or the active one."""
+    obj = bpy.data.objects.get(name) if name else context.active_object
+    if obj is None or obj.type != "MESH":
+        raise bridge.BridgeError(f"'{name or getattr(obj, 'name', 'nothing')}' is not a mesh object")
+    return obj
+
+
+def nearest_point(obj, mesh, world_location) -> SurfacePoints:
+    """The surface point of ``obj`` closest to a world-space location."""
+    return SurfacePoints.nearest(mesh, bridge.world_to_object(obj, world_location))
+
+
+def surface_direction(obj, mesh, point: SurfacePoints, world_direction) -> complex:
+    """A world-space direction as a unit tangent vector (complex) in the point's basis."""
+    M = np.array(obj.matrix_world.inverted())[:3, :3]
+    local = M @ np.asarray(world_direction, np.float64)
+    z = tangent_from_3d(mesh, point, local[None])[0]
+    if abs(z) < 1e-12:
+        raise ContactError("the direction is perpendicular to the surface there; pick one along it")
+    return z / abs(z)
+
+
+def ray_hit(context, event, obj):
+    """Where the mouse ray meets ``obj``: (world location, polygon index) or None."""
+    region, rv3d = context.region, context.region_data
+    if region is None or rv3d is None:
+        return None
+    coord = (event.mouse_region_x, event.mouse_region_y)
+    origin = view3d_utils.region_2d_to_origin_3d(region, rv3d, coord)
+    direction = view3d_utils.region_2d_to_vector_3d(region, rv3d, coord)
+    inverse = obj.matrix_world.inverted()
+    local_origin = inverse @ origin
+    local_direction = (inverse.to_3x3() @ direction).normalized()
+    hit, location, _normal, polygon = obj.ray_cast(local_origin, local_direction)
+    if not hit:
+        return None
+    return np.array(obj.matrix_world @ location), polygon
+
+
+def poll_mesh(cls, context) -> bool:
+    obj = context.active_object
+    if obj is None or obj.type != "MESH":
+        cls.poll_message_set("Select a mesh object (the hand or the object) first")
+        return False
+    return True
+
+
+def poll_patch(cls, context) -> bool:
+    if not poll_mesh(cls, context):
+        return False
+    if not context.active_object.contact_edit.patches:
+        cls.poll_message_set(f"'{context.active_object.name}' has no contact patches yet: paint one first")
+        return False
+    return True

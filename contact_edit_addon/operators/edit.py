@@ -1,0 +1,162 @@
+"""Move a patch over its surface: translate, rotate, bend (Contact Edit §4.3), by dragging or by value.
+
+While dragging, each step starts again from the patch as it was when the drag began (so nothing drifts)
+and only the overlay shows it; confirming stores the result as one undo step, cancelling changes nothing.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+
+import bpy
+
+from .. import overlays, store
+from .common import USER_ERRORS, guarded, mesh_object, nearest_point, poll_patch, ray_hit
+
+
+class _PatchEdit:
+    """Shared plumbing: which patch, the modal loop, preview and commit. Each tool defines
+    ``edited(contacts, name)`` (the edit by its properties) and ``drag(context, event)``."""
+
+    bl_options = {"REGISTER", "UNDO"}
+
+    patch: bpy.props.StringProperty(name="Patch", description="Patch name (default: the active patch)")
+    object_name: bpy.props.StringProperty(name="Object", description="The patch's object (default: active)")
+
+    @classmethod
+    def poll(cls, context):
+        return poll_patch(cls, context)
+
+    def _target(self, context):
+        obj = mesh_object(context, self.object_name or None)
+        name = self.patch or store.active_patch_name(obj)
+        settings = context.scene.contact_edit
+        contacts = store.load(obj, settings.deformed and obj == settings.hand)
+        contacts[name]  # raises a clear error for an unknown name
+        return obj, contacts, name
+
+    def execute(self, context):
+        def run():
+            obj, contacts, name = self._target(context)
+            store.save(obj, self.edited(contacts, name))
+            return {"FINISHED"}
+
+        return guarded(self, run)
+
+    def invoke(self, context, event):
+        if context.area is None or context.area.type != "VIEW_3D":
+            return self.execute(context)
+        try:
+            self._obj, self._start, self._name = self._target(context)
+        except USER_ERRORS as err:
+            self.report({"ERROR"}, str(err))
+            return {"CANCELLED"}
+        self._result = None
+        self._mouse = (event.mouse_region_x, event.mouse_region_y)
+        context.window_manager.modal_handler_add(self)
+        context.area.header_text_set(self.hint)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        if event.type in {"ESC", "RIGHTMOUSE"}:
+            return self._finish(context, commit=False)
+        if event.type in {"LEFTMOUSE", "RET", "NUMPAD_ENTER"} and event.value == "PRESS":
+            return self._finish(context, commit=True)
+        if event.type == "MOUSEMOVE":
+            self.drag(context, event)
+            if self._result is not None:
+                overlays.preview(self._obj, self._result)
+                context.area.tag_redraw()
+        return {"RUNNING_MODAL"}
+
+    def _finish(self, context, commit: bool):
+        context.area.header_text_set(None)
+        overlays.preview(None, None)
+        context.area.tag_redraw()
+        if not commit or self._result is None:
+            return {"CANCELLED"}
+        store.save(self._obj, self._result)
+        return {"FINISHED"}
+
+    def attempt(self, make) -> None:
+        """Try an edit while dragging; a position that fails (off the boundary) is simply not taken."""
+        with contextlib.suppress(*USER_ERRORS):
+            self._result = make()
+
+
+class CONTACT_EDIT_OT_translate(_PatchEdit, bpy.types.Operator):
+    """Slide a contact patch over its surface (its children follow)"""
+
+    bl_idname = "contact_edit.translate"
+    bl_label = "Translate Contact"
+    hint = "Translate: move the mouse over the surface · click to confirm · Esc cancels"
+
+    location: bpy.props.FloatVectorProperty(
+        name="To",
+        size=3,
+        subtype="TRANSLATION",
+        description="World-space point the patch's axis should start at",
+    )
+
+    def edited(self, contacts, name):
+        obj = mesh_object(bpy.context, self.object_name or None)
+        return contacts.translate(name, nearest_point(obj, contacts.mesh, self.location))
+
+    def drag(self, context, event):
+        hit = ray_hit(context, event, self._obj)
+        if hit is not None:
+            self.location = hit[0]
+            to = nearest_point(self._obj, self._start.mesh, hit[0])
+            self.attempt(lambda: self._start.translate(self._name, to))
+
+
+class CONTACT_EDIT_OT_rotate(_PatchEdit, bpy.types.Operator):
+    """Turn a contact patch about the first point of its axis (its children follow)"""
+
+    bl_idname = "contact_edit.rotate"
+    bl_label = "Rotate Contact"
+    hint = "Rotate: move the mouse left or right · click to confirm · Esc cancels"
+
+    angle: bpy.props.FloatProperty(
+        name="Angle", subtype="ANGLE", description="Counter-clockwise on the surface"
+    )
+
+    def edited(self, contacts, name):
+        return contacts.rotate(name, self.angle)
+
+    def drag(self, context, event):
+        self.angle = (event.mouse_region_x - self._mouse[0]) * math.radians(0.5)
+        self.attempt(lambda: self._start.rotate(self._name, self.angle))
+
+
+class CONTACT_EDIT_OT_bend(_PatchEdit, bpy.types.Operator):
+    """Bend a contact patch: turn its part from an axis point on about that point"""
+
+    bl_idname = "contact_edit.bend"
+    bl_label = "Bend Contact"
+    hint = "Bend: move the mouse left or right · click to confirm · Esc cancels"
+
+    index: bpy.props.IntProperty(name="Axis point", min=1, default=1, description="Where the axis bends")
+    angle: bpy.props.FloatProperty(name="Angle", subtype="ANGLE")
+
+    def invoke(self, context, event):
+        obj = mesh_object(context, self.object_name or None)
+        try:
+            contacts = store.load(obj)
+            name = self.patch or store.active_patch_name(obj)
+            self.index = max(1, len(contacts[name].axis) // 2)  # the middle, unless a script chose
+        except USER_ERRORS as err:
+            self.report({"ERROR"}, str(err))
+            return {"CANCELLED"}
+        return super().invoke(context, event)
+
+    def edited(self, contacts, name):
+        return contacts.bend(name, self.index, self.angle)
+
+    def drag(self, context, event):
+        self.angle = (event.mouse_region_x - self._mouse[0]) * math.radians(0.5)
+        self.attempt(lambda: self._start.bend(self._name, self.index, self.angle))
+
+
+classes = (CONTACT_EDIT_OT_translate, CONTACT_EDIT_OT_rotate, CONTACT_EDIT_OT_bend)

@@ -1,0 +1,75 @@
+"""Data Contact Edit keeps in the .blend file.
+
+Every mesh object has ``contact_edit``: its contact set as a contact file (JSON text: intrinsic points,
+axes, links, pairs; see :mod:`geodesics.contacts`), plus a list of its patches (names, colours) that the
+sidebar's list shows and that is rebuilt from the set whenever it changes. The scene has
+``contact_edit``: which objects are the hand and the object, and the solver settings. Keeping the data
+in ID properties makes it survive save and reload and follow undo.
+"""
+
+import bpy
+
+
+class CONTACT_EDIT_PG_patch(bpy.types.PropertyGroup):
+    """One contact patch as the patch list shows it (the contact set is the source of truth)."""
+
+    name: bpy.props.StringProperty(name="Name")
+    color: bpy.props.FloatVectorProperty(
+        name="Colour", subtype="COLOR", size=4, min=0.0, max=1.0, default=(0.9, 0.4, 0.1, 1.0)
+    )
+    points: bpy.props.IntProperty(name="Points", min=0)
+    parent: bpy.props.StringProperty(name="Parent")
+    pair: bpy.props.StringProperty(name="Paired with")
+    visible: bpy.props.BoolProperty(name="Visible", default=True)
+
+
+class CONTACT_EDIT_PG_object(bpy.types.PropertyGroup):
+    """The contacts of one mesh object."""
+
+    data: bpy.props.StringProperty(name="Contact data", description="The contact set, as a contact file")
+    patches: bpy.props.CollectionProperty(type=CONTACT_EDIT_PG_patch)
+    active: bpy.props.IntProperty(name="Active patch", default=0, min=0)
+
+
+def _is_mesh(_self, obj) -> bool:
+    return obj.type == "MESH"
+
+
+class CONTACT_EDIT_PG_scene(bpy.types.PropertyGroup):
+    """Which objects are posed against each other, and how the pose is solved."""
+
+    hand: bpy.props.PointerProperty(
+        name="Hand", type=bpy.types.Object, poll=_is_mesh, description="The skinned mesh that touches"
+    )
+    target: bpy.props.PointerProperty(
+        name="Object", type=bpy.types.Object, poll=_is_mesh, description="The mesh being touched"
+    )
+    axis_method: bpy.props.EnumProperty(
+        name="Default axis",
+        items=[
+            ("FARTHEST", "Farthest points", "The geodesic between the patch's two farthest points"),
+            ("MEDIAL", "Medial axis", "The patch's smoothed medial axis"),
+        ],
+        default="FARTHEST",
+    )
+    deformed: bpy.props.BoolProperty(
+        name="Use deformed shape",
+        description="Work on the hand's current deformed shape instead of its rest shape",
+        default=False,
+    )
+    weight_distance: bpy.props.FloatProperty(name="Distance (λd)", default=1.0, min=0.0)
+    weight_normal: bpy.props.FloatProperty(name="Normals (λn)", default=1.0, min=0.0)
+    weight_prior: bpy.props.FloatProperty(name="Rest pose (λp)", default=10.0, min=0.0)
+
+
+classes = (CONTACT_EDIT_PG_patch, CONTACT_EDIT_PG_object, CONTACT_EDIT_PG_scene)
+
+
+def register() -> None:
+    bpy.types.Object.contact_edit = bpy.props.PointerProperty(type=CONTACT_EDIT_PG_object)
+    bpy.types.Scene.contact_edit = bpy.props.PointerProperty(type=CONTACT_EDIT_PG_scene)
+
+
+def unregister() -> None:
+    del bpy.types.Scene.contact_edit
+    del bpy.types.Object.contact_edit

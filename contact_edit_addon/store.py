@@ -1,0 +1,64 @@
+"""Reading and writing an object's contact set (kept as a contact file in its ``contact_edit.data``)."""
+
+from __future__ import annotations
+
+import json
+
+import bpy
+
+from geodesics import ContactError, ContactSet
+
+from . import bridge
+
+#: Patch colours, assigned in order; a transferred patch takes its counterpart's colour.
+PALETTE = (
+    (0.95, 0.45, 0.10, 1.0),
+    (0.15, 0.60, 0.95, 1.0),
+    (0.30, 0.80, 0.30, 1.0),
+    (0.90, 0.25, 0.60, 1.0),
+    (0.95, 0.85, 0.20, 1.0),
+    (0.55, 0.35, 0.90, 1.0),
+    (0.20, 0.85, 0.80, 1.0),
+    (0.85, 0.20, 0.20, 1.0),
+)
+
+
+def load(obj: bpy.types.Object, deformed: bool = False) -> ContactSet:
+    """The object's contact set on its current mesh. Contacts saved for a different triangulation or
+    topology of the object are projected onto the current surface by their saved positions."""
+    mesh = bridge.trimesh(obj, deformed=deformed)
+    text = obj.contact_edit.data
+    if not text:
+        return ContactSet(mesh)
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise ContactError(f"the contact data stored on '{obj.name}' is damaged: {err}") from None
+    same = data.get("mesh", {}).get("hash") == mesh.topology_hash
+    return ContactSet.from_dict(data, mesh, remap=not same, source=f"the contacts of '{obj.name}'")
+
+
+def save(obj: bpy.types.Object, contacts: ContactSet, colors: dict | None = None) -> None:
+    """Store the set on the object and rebuild the patch list the sidebar shows (keeping colours)."""
+    entries = obj.contact_edit.patches
+    previous = {e.name: tuple(e.color) for e in entries}
+    visible = {e.name: e.visible for e in entries}
+    colors = {**previous, **(colors or {})}
+    obj.contact_edit.data = json.dumps(contacts.to_dict())
+    entries.clear()
+    for i, name in enumerate(contacts):
+        entry = entries.add()
+        entry.name = name
+        entry.color = colors.get(name, PALETTE[i % len(PALETTE)])
+        entry.points = len(contacts[name])
+        entry.parent = contacts.links[name].parent if name in contacts.links else ""
+        entry.pair = contacts.pairs.get(name, "")
+        entry.visible = visible.get(name, True)
+    obj.contact_edit.active = min(obj.contact_edit.active, max(len(entries) - 1, 0))
+
+
+def active_patch_name(obj: bpy.types.Object) -> str | None:
+    entries = obj.contact_edit.patches
+    if not entries:
+        return None
+    return entries[min(obj.contact_edit.active, len(entries) - 1)].name

@@ -1,0 +1,36 @@
+"""Running scripts in the real bpy module, each in a fresh process with its own temporary Blender user
+folder (so tests never touch a real user's configuration)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+PRELUDE = """
+import json, sys
+import bpy
+def result(value):
+    print("RESULT " + json.dumps(value))
+"""
+
+
+def run_blender(script: str, user_dir: Path, setup: str = "", timeout: float = 300) -> dict:
+    """Run ``setup`` then ``script`` with bpy; the script reports by calling ``result(value)``. Raises with
+    the output on failure."""
+    env = {**os.environ, "BLENDER_USER_RESOURCES": str(user_dir)}
+    code = PRELUDE + textwrap.dedent(setup) + textwrap.dedent(script)
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=timeout,
+    )
+    lines = [line for line in done.stdout.splitlines() if line.startswith("RESULT ")]
+    if done.returncode != 0 or not lines:
+        raise AssertionError(f"Blender script failed ({done.returncode}):\n{done.stdout}\n{done.stderr}")
+    return json.loads(lines[-1][len("RESULT ") :])

@@ -1,0 +1,193 @@
+"""The add-on in the real bpy 5.0.1 module: installing the built extension, and the contact tools driven
+headless with explicit properties, as batch scripts use them."""
+
+from pathlib import Path
+
+import pytest
+
+from contact_edit_addon import build
+
+from .blender import run_blender
+
+SETUP = """
+import numpy as np
+import contact_edit_addon
+contact_edit_addon.register()
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.mesh.primitive_grid_add(x_subdivisions=30, y_subdivisions=30, size=2.0)
+hand = bpy.context.active_object
+hand.name = "Hand"
+bpy.ops.mesh.primitive_uv_sphere_add(radius=1.0, location=(0, 0, 3))
+ball = bpy.context.active_object
+ball.name = "Ball"
+scene = bpy.context.scene
+scene.contact_edit.hand, scene.contact_edit.target = hand, ball
+bpy.context.view_layer.objects.active = hand
+
+def select_disk(cx, cy, r):
+    co = np.empty(3 * len(hand.data.vertices)); hand.data.vertices.foreach_get("co", co)
+    co = co.reshape(-1, 3)
+    hand.data.vertices.foreach_set("select", np.hypot(co[:, 0] - cx, co[:, 1] - cy) < r)
+
+from contact_edit_addon import store
+"""
+
+
+@pytest.fixture(scope="module")
+def extension(tmp_path_factory) -> Path:
+    return build.build_extension(tmp_path_factory.mktemp("dist"), platforms=["linux-x64"])[0]
+
+
+def test_extension_validates_installs_enables_and_uninstalls(extension, tmp_path):
+    out = run_blender(
+        f"""
+        import importlib.util, os, zipfile
+        path = os.path.join(bpy.utils.system_resource("SCRIPTS"), "addons_core/bl_pkg/cli/blender_ext.py")
+        spec = importlib.util.spec_from_file_location("blender_ext", path)
+        blender_ext = importlib.util.module_from_spec(spec); spec.loader.exec_module(blender_ext)
+        errors = blender_ext.pkg_manifest_from_zipfile_and_validate_all_errors(
+            zipfile.ZipFile({str(extension)!r}), archive_subdir="", strict=True)
+        installed = bpy.ops.extensions.package_install_files(
+            filepath={str(extension)!r}, repo="user_default", enable_on_install=True)
+        enabled = "bl_ext.user_default.contact_edit" in bpy.context.preferences.addons
+        operators = hasattr(bpy.ops.contact_edit, "paint") and hasattr(bpy.types.Object, "contact_edit")
+        site = os.path.join({str(tmp_path)!r}, "extensions/.local/lib/python3.11/site-packages")
+        bundled = sorted(os.listdir(site))
+        repos = [r.module for r in bpy.context.preferences.extensions.repos]
+        index = repos.index("user_default")
+        removed = bpy.ops.extensions.package_uninstall(repo_index=index, pkg_id="contact_edit")
+        left = os.path.join({str(tmp_path)!r}, "extensions/user_default/contact_edit")
+        result(dict(errors=errors if isinstance(errors, list) else [], installed=list(installed),
+                    enabled=enabled, operators=operators, bundled=bundled, removed=list(removed),
+                    still_enabled="bl_ext.user_default.contact_edit" in bpy.context.preferences.addons,
+                    properties_left=hasattr(bpy.types.Object, "contact_edit"),
+                    files_left=os.path.exists(left)))
+        """,
+        tmp_path,
+    )
+    assert out["errors"] == []
+    assert out["installed"] == ["FINISHED"] and out["enabled"] and out["operators"]
+    for package in ("geodesics", "solver", "tangible", "scipy", "potpourri3d", "serial"):
+        assert package in out["bundled"]
+    assert "numpy" not in out["bundled"]  # Blender's own
+    assert out["removed"] == ["FINISHED"]
+    assert not out["still_enabled"] and not out["properties_left"] and not out["files_left"]
+
+
+def test_contact_tools_run_headless_and_persist(tmp_path):
+    out = run_blender(
+        f"""
+        select_disk(0.2, 0.1, 0.35)
+        bpy.ops.contact_edit.paint(name="palm", source="SELECTION")
+        select_disk(0.7, 0.1, 0.12)
+        bpy.ops.contact_edit.paint(name="tip", source="SELECTION")
+        bpy.ops.contact_edit.parent(child="tip", parent="palm")
+        before = store.load(hand)
+        bpy.ops.contact_edit.rotate(patch="palm", angle=0.3)
+        bpy.ops.contact_edit.translate(patch="palm", location=(0.1, -0.1, 0.0))
+        bpy.ops.contact_edit.bend(patch="palm", index=2, angle=0.2)
+        after = store.load(hand)
+        moved_tip = float(np.abs(after["tip"].positions() - before["tip"].positions()).max())
+        bpy.ops.contact_edit.axis(patch="tip", method="MEDIAL")
+        bpy.ops.contact_edit.transfer(patch="palm", location=(0, 0, 2.0), direction=(1, 0, 0), suffix="@ball")
+        ball_patches = [(p.name, p.points, p.pair, p.parent) for p in ball.contact_edit.patches]
+        hand_pairs = {{p.name: p.pair for p in hand.contact_edit.patches}}
+        data = hand.contact_edit.data
+        messages = []
+        for call in (lambda: bpy.ops.contact_edit.translate(patch="palm", location=(5.0, 5.0, 0.0)),
+                     lambda: bpy.ops.contact_edit.rotate(patch="nope", angle=0.1)):
+            try:
+                call()
+            except RuntimeError as err:
+                messages.append(str(err))
+        unchanged = hand.contact_edit.data == data
+        library = {str(tmp_path / "library.json")!r}
+        bpy.ops.contact_edit.library_save(filepath=library)
+        bpy.ops.contact_edit.clear(all=True)
+        cleared = len(hand.contact_edit.patches)
+        bpy.ops.contact_edit.library_load(filepath=library)
+        reloaded = store.load(hand)
+        same = float(np.abs(reloaded["palm"].positions() - store.load(hand)["palm"].positions()).max())
+        bpy.ops.wm.save_as_mainfile(filepath={str(tmp_path / "scene.blend")!r})
+        bpy.ops.wm.open_mainfile(filepath={str(tmp_path / "scene.blend")!r})
+        persisted = [p.name for p in bpy.data.objects["Hand"].contact_edit.patches]
+        persisted_ball = [p.name for p in bpy.data.objects["Ball"].contact_edit.patches]
+        result(dict(moved_tip=moved_tip, ball=ball_patches, pairs=hand_pairs, messages=messages,
+                    unchanged=unchanged, cleared=cleared, same=same, persisted=persisted,
+                    persisted_ball=persisted_ball))
+        """,
+        tmp_path,
+        setup=SETUP,
+    )
+    assert out["moved_tip"] > 0.01  # the child followed its parent
+    assert [b[0] for b in out["ball"]] == ["palm@ball", "tip@ball"]
+    assert out["ball"][1][3] == "palm@ball"  # the hierarchy came along
+    assert out["pairs"] == {"palm": "palm@ball", "tip": "tip@ball"}
+    assert "runs off the surface's boundary" in out["messages"][0]
+    assert "no patch named 'nope'" in out["messages"][1]
+    assert out["unchanged"]
+    assert out["cleared"] == 0 and out["same"] == 0.0
+    assert out["persisted"] == ["palm", "tip"] and out["persisted_ball"] == ["palm@ball", "tip@ball"]
+
+
+def test_brush_strokes_become_points_inside_faces(tmp_path):
+    out = run_blender(
+        """
+        hits = []
+        for x in np.linspace(-0.5, 0.5, 30):
+            ok, location, normal, polygon = hand.ray_cast((x, 0.5, 1.0), (0, 0, -1))
+            hits.append({"name": "", "location": location[:], "polygon": polygon})
+        bpy.ops.contact_edit.paint(name="stroke", source="STROKE", stroke=hits)
+        patch = store.load(hand)["stroke"]
+        X = patch.positions()
+        result(dict(n=len(patch), y=[float(X[:, 1].min()), float(X[:, 1].max())],
+                    x=[float(X[:, 0].min()), float(X[:, 0].max())]))
+        """,
+        tmp_path,
+        setup=SETUP,
+    )
+    assert out["n"] == 30
+    assert out["y"] == pytest.approx([0.5, 0.5], abs=1e-12)
+    assert out["x"] == pytest.approx([-0.5, 0.5], abs=1e-12)
+
+
+def test_contacts_follow_a_changed_mesh_by_position(tmp_path):
+    """Contacts stored for one topology are projected onto the surface when the mesh changes."""
+    out = run_blender(
+        """
+        select_disk(0.2, 0.1, 0.3)
+        bpy.ops.contact_edit.paint(name="palm", source="SELECTION")
+        before = store.load(hand)["palm"].positions()
+        import bmesh
+        bm = bmesh.new(); bm.from_mesh(hand.data)
+        bmesh.ops.subdivide_edges(bm, edges=[e for e in bm.edges if e.verts[0].co.x < -0.9], cuts=1)
+        bm.to_mesh(hand.data); bm.free()
+        after = store.load(hand)["palm"].positions()
+        result(dict(gap=float(np.abs(after - before).max()), n=len(after)))
+        """,
+        tmp_path,
+        setup=SETUP,
+    )
+    assert out["gap"] < 1e-9  # the surface did not move, so the contacts did not either
+
+
+def test_operators_explain_why_they_are_unavailable(tmp_path):
+    out = run_blender(
+        """
+        import contact_edit_addon
+        contact_edit_addon.register()
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.object.empty_add()
+        messages = {}
+        for name in ("paint", "rotate", "transfer"):
+            try:
+                getattr(bpy.ops.contact_edit, name)()
+            except RuntimeError as err:
+                messages[name] = str(err)
+        result(messages)
+        """,
+        tmp_path,
+    )
+    assert "Select a mesh object" in out["paint"]
+    assert "Select a mesh object" in out["rotate"]
+    assert "Choose the hand and the object" in out["transfer"]
