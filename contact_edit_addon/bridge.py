@@ -20,7 +20,16 @@ _CACHE_SIZE = 8
 
 
 class BridgeError(RuntimeError):
-    """Blender data that cannot be turned into what the libraries need, in an animator's words."""
+    """Blender data that cannot be turned into what the libraries need, in an animator's words.
+
+    ``object_name``, ``polygons`` and ``vertices`` say where, so the interface can select them.
+    """
+
+    def __init__(self, message: str, object_name: str = "", polygons=(), vertices=()):
+        super().__init__(message)
+        self.object_name = object_name
+        self.polygons = np.asarray(polygons, np.int64)
+        self.vertices = np.asarray(vertices, np.int64)
 
 
 def mesh_arrays(mesh: bpy.types.Mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -64,7 +73,9 @@ def trimesh(obj: bpy.types.Object, deformed: bool = False, depsgraph=None) -> Tr
         try:
             _cache[key] = TriMesh.from_polygons(vertices, (corners, sizes))
         except MeshError as err:
-            raise BridgeError(f"'{obj.name}' cannot carry contacts: {err}") from err
+            raise BridgeError(
+                f"'{obj.name}' cannot carry contacts: {err}", obj.name, err.faces, err.vertices
+            ) from err
         while len(_cache) > _CACHE_SIZE:
             _cache.pop(next(iter(_cache)))
     return _cache[key]
@@ -75,6 +86,23 @@ def _fingerprint(*arrays: np.ndarray) -> str:
     for a in arrays:
         digest.update(np.ascontiguousarray(a).tobytes())
     return digest.hexdigest()
+
+
+def select_elements(obj: bpy.types.Object, polygons: np.ndarray, vertices: np.ndarray) -> None:
+    """Select exactly the given polygons and vertices of a mesh object (to show the user a problem)."""
+    mesh = obj.data
+    polygon_flags = np.zeros(len(mesh.polygons), bool)
+    polygon_flags[polygons[(polygons >= 0) & (polygons < len(mesh.polygons))]] = True
+    vertex_flags = np.zeros(len(mesh.vertices), bool)
+    vertex_flags[vertices[(vertices >= 0) & (vertices < len(mesh.vertices))]] = True
+    corners = np.empty(len(mesh.loops), np.int64)
+    mesh.loops.foreach_get("vertex_index", corners)
+    sizes = np.empty(len(mesh.polygons), np.int64)
+    mesh.polygons.foreach_get("loop_total", sizes)
+    vertex_flags[corners[np.repeat(polygon_flags, sizes)]] = True
+    mesh.polygons.foreach_set("select", polygon_flags)
+    mesh.vertices.foreach_set("select", vertex_flags)
+    mesh.edges.foreach_set("select", np.zeros(len(mesh.edges), bool))
 
 
 def selected_vertices(obj: bpy.types.Object) -> np.ndarray:

@@ -110,12 +110,24 @@ class TriMesh:
         TriMesh
             With ``triangle_polygon`` (m,) giving each triangle's polygon and ``triangle_corners``
             (m, 3) giving, for each triangle corner, its corner index within that polygon.
+
+        Raises
+        ------
+        MeshError
+            As :class:`TriMesh` does, with ``faces`` holding the offending *polygons*.
         """
         from .polygons import triangulate_polygons
 
         vertices = np.asarray(vertices, dtype=np.float64)
         faces, polygon, corners = triangulate_polygons(vertices, polygons)
-        mesh = cls(vertices, faces)
+        try:
+            mesh = cls(vertices, faces)
+        except MeshError as err:
+            polygons_at_fault = np.unique(polygon[err.faces]) if err.faces.size else err.faces
+            where = f" (polygons {describe_ids(polygons_at_fault)})" if polygons_at_fault.size else ""
+            raise MeshError(
+                f"{err}{where}", vertices=err.vertices, faces=polygons_at_fault, edges=err.edges
+            ) from None
         mesh.triangle_polygon = _readonly(polygon)
         mesh.triangle_corners = _readonly(corners)
         return mesh

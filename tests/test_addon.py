@@ -191,3 +191,35 @@ def test_operators_explain_why_they_are_unavailable(tmp_path):
     assert "Select a mesh object" in out["paint"]
     assert "Select a mesh object" in out["rotate"]
     assert "Choose the hand and the object" in out["transfer"]
+
+
+def test_a_non_manifold_mesh_is_reported_with_its_faults_selected(tmp_path):
+    out = run_blender(
+        """
+        import bmesh
+        import contact_edit_addon
+        contact_edit_addon.register()
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.mesh.primitive_grid_add(x_subdivisions=4, y_subdivisions=4, size=2.0)
+        obj = bpy.context.active_object
+        bm = bmesh.new(); bm.from_mesh(obj.data)
+        bm.edges.ensure_lookup_table()
+        edge = next(e for e in bm.edges if len(e.link_faces) == 2)  # an inner edge: faces 3 and 4 on it
+        extra = bm.verts.new((0.0, 0.0, 1.0))
+        bm.faces.new((edge.verts[0], edge.verts[1], extra))
+        bm.to_mesh(obj.data); bm.free()
+        obj.data.vertices.foreach_set("select", [False] * len(obj.data.vertices))
+        before = obj.contact_edit.data
+        try:
+            bpy.ops.contact_edit.paint(name="x", source="SELECTION")
+            message = ""
+        except RuntimeError as err:
+            message = str(err)
+        selected = [p.index for p in obj.data.polygons if p.select]
+        result(dict(message=message, selected=selected, unchanged=obj.contact_edit.data == before))
+        """,
+        tmp_path,
+    )
+    assert "non-manifold" in out["message"] and "offending elements are selected" in out["message"]
+    assert len(out["selected"]) >= 3
+    assert out["unchanged"]

@@ -530,3 +530,15 @@ def test_unfolding_is_exact_on_a_flat_grid(flat_grid):
     zg = m.halfedge_offset[h] + m.halfedge_rotation[h] * z
     x = m.vertices[m.faces[g, 0]] + to3d(zg, m.face_axes(g))
     np.testing.assert_allclose(x, m.vertices[m.faces[f]].mean(1), atol=1e-13)
+
+
+def test_errors_from_polygons_name_the_polygons():
+    """A Blender user sees polygons, not our triangles: errors from from_polygons point at polygons."""
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 0.5, 1], [0.5, 0.5, -1]])
+    # polygon 2 repeats the quad's edge 0-1 a third time: a non-manifold edge
+    polygons = [[0, 1, 2, 3], [0, 4, 1], [1, 0, 5], [0, 1, 4]]
+    with pytest.raises(MeshError, match="polygons") as caught:
+        TriMesh.from_polygons(V, polygons)
+    assert set(caught.value.faces.tolist()) <= {0, 1, 2, 3}
+    assert caught.value.faces.size > 0
+    assert caught.value.faces.max() < len(polygons)

@@ -17,11 +17,19 @@ USER_ERRORS = (ContactError, GeodesicError, MeshError, bridge.BridgeError)
 
 
 def guarded(operator: bpy.types.Operator, action: Callable[[], set]) -> set:
-    """Run ``action``; report a library error as an operator error and cancel (changing nothing)."""
+    """Run ``action``; report a library error as an operator error and cancel. Nothing else changes,
+    except that a mesh's offending polygons and vertices are selected, to show where it is broken."""
     try:
         return action()
     except USER_ERRORS as err:
-        operator.report({"ERROR"}, str(err))
+        obj = bpy.data.objects.get(getattr(err, "object_name", ""))
+        if obj is not None and obj.type == "MESH" and (err.polygons.size or err.vertices.size):
+            if obj.mode == "EDIT":
+                bpy.ops.object.mode_set(mode="OBJECT")
+            bridge.select_elements(obj, err.polygons, err.vertices)
+            operator.report({"ERROR"}, f"{err} — the offending elements are selected")
+        else:
+            operator.report({"ERROR"}, str(err))
         return {"CANCELLED"}
 
 
