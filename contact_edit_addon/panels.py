@@ -52,6 +52,7 @@ class VIEW3D_PT_contact_edit(bpy.types.Panel):
         grid.operator("contact_edit.rotate", text="Rotate")
         grid.operator("contact_edit.bend", text="Bend")
         grid.operator("contact_edit.clear", text="Remove")
+        layout.operator("contact_edit.make_proxy", text="Make manifold proxy", icon="MOD_REMESH")
         row = layout.row(align=True)
         row.operator("contact_edit.library_save", text="Save library", icon="EXPORT")
         row.operator("contact_edit.library_load", text="Load library", icon="IMPORT")

@@ -223,3 +223,38 @@ def test_a_non_manifold_mesh_is_reported_with_its_faults_selected(tmp_path):
     assert "non-manifold" in out["message"] and "offending elements are selected" in out["message"]
     assert len(out["selected"]) >= 3
     assert out["unchanged"]
+
+
+def test_a_proxy_carries_contacts_for_a_mesh_in_pieces(tmp_path):
+    """Two overlapping spheres (one mesh, two pieces): the proxy is one manifold surface on top of them."""
+    out = run_blender(
+        """
+        import numpy as np
+        import contact_edit_addon
+        contact_edit_addon.register()
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.mesh.primitive_uv_sphere_add(radius=1.0, location=(0, 0, 0))
+        bpy.ops.mesh.primitive_uv_sphere_add(radius=1.0, location=(1.2, 0, 0))
+        bpy.ops.object.select_all(action="SELECT")
+        bpy.ops.object.join()
+        scan = bpy.context.active_object
+        scan.name = "Scan"
+        bpy.context.scene.contact_edit.target = scan
+        bpy.ops.contact_edit.make_proxy()
+        proxy = bpy.context.active_object
+        from contact_edit_addon import bridge
+        mesh = bridge.trimesh(proxy)
+        X = bridge.object_to_world(proxy, mesh.vertices)
+        to_surface = np.minimum(np.abs(np.linalg.norm(X, axis=1) - 1),
+                                np.abs(np.linalg.norm(X - [1.2, 0, 0], axis=1) - 1))
+        outside = (np.linalg.norm(X, axis=1) > 0.99) & (np.linalg.norm(X - [1.2, 0, 0], axis=1) > 0.99)
+        target = bpy.context.scene.contact_edit.target.name
+        result(dict(name=proxy.name, components=int(mesh.n_components), target=target,
+                    gap=float(np.median(to_surface)), outside=float(outside.mean())))
+        """,
+        tmp_path,
+    )
+    assert out["name"] == "Scan (contact proxy)" and out["target"] == out["name"]
+    assert out["components"] == 1  # one closed surface around the union
+    assert out["gap"] < 0.02  # on the original surface (up to the UV spheres' faceting)
+    assert out["outside"] > 0.95  # the outer shell, not the buried halves
