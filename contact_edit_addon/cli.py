@@ -4,6 +4,9 @@ Subcommands:
 
 * ``bench geodesics`` — time the geodesic core side by side with potpourri3d and pygeodesic.
 * ``bench contacts`` — time the contact model (parameterize, edits, transfer, atlas).
+* ``bench solver`` — time contact IK (analytic against finite-difference gradients, NLopt's optimizers
+  side by side) and the flex-to-contact grasp.
+* ``ablation`` — the contact IK ablation of Contact Edit's Fig. 11 as a table (each term of Eq. 2 removed).
 * ``build-extension`` — build the Blender extension zips, with every run-time dependency as wheels.
 """
 
@@ -24,9 +27,22 @@ def _bench(args: argparse.Namespace) -> int:
     print(f"contact-edit bench {args.target}: {runs}", flush=True)
     if args.target == "geodesics":
         rows = benchmark.run(repeat=args.repeat, rays=args.rays, progress=_progress)
+    elif args.target == "solver":
+        from solver import benchmark as solver_benchmark
+
+        print(f"  finite-difference solves: median of min(repeat, {solver_benchmark.FD_RUNS}), no warm-up")
+        rows = solver_benchmark.run(repeat=args.repeat, progress=_progress)
     else:
         rows = benchmark.run_contacts(repeat=args.repeat, progress=_progress)
     print(benchmark.format_table(rows))
+    return 0
+
+
+def _ablation(args: argparse.Namespace) -> int:
+    from solver import benchmark
+
+    print("contact-edit ablation: each term of Eq. 2 removed in turn, solved from the rest pose", flush=True)
+    print(benchmark.format_ablation(benchmark.ablation(progress=_progress)))
     return 0
 
 
@@ -52,10 +68,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="contact-edit", description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True)
     bench = commands.add_parser("bench", help="run a benchmark and print its table")
-    bench.add_argument("target", choices=["geodesics", "contacts"], help="what to benchmark")
+    bench.add_argument("target", choices=["geodesics", "contacts", "solver"], help="what to benchmark")
     bench.add_argument("--repeat", type=int, default=7, help="runs per timing (the median is shown)")
     bench.add_argument("--rays", type=int, default=2000, help="rays / targets per query")
     bench.set_defaults(run=_bench)
+    ablation = commands.add_parser("ablation", help="print the contact IK ablation table (Fig. 11)")
+    ablation.set_defaults(run=_ablation)
     ext = commands.add_parser("build-extension", help="build the Blender extension zips (one per platform)")
     ext.add_argument("--output", "-o", default="dist", help="folder for the zips (default: dist)")
     ext.add_argument(

@@ -1,1 +1,38 @@
-"""Rigs, skinning, contact IK, retargeting and procedural hands (arrives with the solver issue)."""
+"""Rigs, skinning, contact IK and procedural manipulators: the pose that makes a hand meet its contacts.
+
+* :class:`Rig` — Blender-exact armatures: bone rest matrices, Euler-angle DOFs, limits, forward kinematics.
+* :class:`SkinnedMesh` — Blender's linear blend skinning with analytic derivatives.
+* :class:`ContactIK` — Eq. 2 of Contact Edit (plus the markers, table and keyed-pose terms of the
+  retargeting paper), solved with NLopt; :class:`Weights`, :class:`SolveResult`.
+* :mod:`solver.hands` and :mod:`solver.objects` — procedural rigged hands and closed test objects.
+* :func:`flex_to_contact` and :func:`grasp` — the 1988 bisection grasp, an initializer for ContactIK.
+"""
+
+from . import hands, objects
+from .errors import SolverError
+from .grasp import GraspResult, flex_to_contact, grasp
+from .ik import ContactIK, Markers, Progress, SolveResult, Weights
+from .rig import Kinematics, Rig
+from .sdf import Box, HalfSpace, MeshSDF
+from .skinning import SkinnedMesh, normalize_vertex_groups
+
+__all__ = [
+    "Box",
+    "ContactIK",
+    "GraspResult",
+    "HalfSpace",
+    "Kinematics",
+    "Markers",
+    "MeshSDF",
+    "Progress",
+    "Rig",
+    "SkinnedMesh",
+    "SolveResult",
+    "SolverError",
+    "Weights",
+    "flex_to_contact",
+    "grasp",
+    "hands",
+    "normalize_vertex_groups",
+    "objects",
+]

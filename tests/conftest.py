@@ -29,3 +29,7 @@ def bumpy() -> TriMesh:
 def sharp_cone() -> TriMesh:
     """A tall cone with its apex as the last vertex: apex angle sum 2π sin(atan(1/4)) ≈ 1.52 < π."""
     return cone(base_radius=1.0, height=4.0, top_radius=0.0, n_around=16, n_along=4, jitter=0.15, seed=5)
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "slow: a long test that runs by default (deselect: -m 'not slow')")

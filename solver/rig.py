@@ -1,0 +1,468 @@
+"""Armatures as Blender poses them: a tree of bones with rest matrices, a DOF vector, forward kinematics.
+
+Conventions (Blender's, for directly posed deform bones, so that a Blender armature maps onto a
+:class:`Rig` and poses come back identical):
+
+* Every bone has a rest matrix in armature space, ``matrix_local`` (Blender's ``bone.matrix_local``,
+  4x4): its translation is the bone's head, its y axis points along the bone towards the tail, its x
+  and z axes carry the roll. ``lengths`` are head-to-tail distances.
+* Bones are listed parents first: ``parents[0] == -1`` (the one root) and ``parents[b] < b``.
+* A pose gives each bone a local transform ``basis`` (Blender's ``pose_bone.matrix_basis``): a
+  translation (root only, Blender's ``location``, in the bone's rest frame) followed by a rotation. The
+  posed armature-space matrix (Blender's ``pose_bone.matrix``) is
+  ``pose[b] = pose[parent] @ (matrix_local[parent]^-1 @ matrix_local[b]) @ basis[b]``, and
+  ``pose[root] = matrix_local[root] @ basis[root]``.
+* **DOFs.** The root has six (location x, y, z, then rotation x, y, z), every other bone three
+  (rotation x, y, z): ``6 + 3 (n_bones - 1)`` in all, in bone order. Rotations are **Euler angles in
+  the bone's local (rest) frame**, in the bone's Blender rotation mode (``"XYZ"`` by default; see
+  :mod:`solver.rotations`): the values are exactly Blender's ``pose_bone.rotation_euler`` and θ = 0
+  is the rest pose. Why Euler: a joint's limits (Blender's Limit Rotation constraint, IK limits,
+  locks) are then plain box bounds ``lower <= θ <= upper`` that a bounded optimizer enforces exactly,
+  and animators key finger curls as single Euler channels. The parameterization is singular only
+  when the middle angle reaches ±90°; with the default ``"XYZ"`` and the bone along y that is a 90°
+  twist, which finger and tentacle limits keep far away. Quaternion or axis-angle bones convert
+  exactly through :meth:`Rig.basis` / :meth:`Rig.theta_from_basis` and :mod:`solver.rotations`.
+* Locked DOFs (Blender's ``lock_location`` / ``lock_rotation``) keep their value in every solve.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from .errors import SolverError, describe_ids
+from .rotations import EULER_ORDERS, axis_rotation, matrix_to_euler, order_axes
+
+#: Rest rotations must be orthonormal to this tolerance.
+ORTHONORMAL_TOLERANCE = 1e-6
+#: A bone shorter than this fraction of the longest bone counts as zero-length.
+MIN_RELATIVE_LENGTH = 1e-9
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True)
+class Kinematics:
+    """Forward kinematics of one pose, with what the analytic derivatives need.
+
+    Attributes
+    ----------
+    matrices : (b, 4, 4)
+        Posed armature-space bone matrices (Blender's ``pose_bone.matrix``).
+    skinning : (b, 3, 4)
+        ``(matrices @ matrix_local^-1)[:, :3]``: what each bone does to a rest-space point.
+    axes : (d, 3)
+        Per DOF, the unit armature-space direction a translation DOF moves along, or the axis a rotation
+        DOF turns about, at this pose.
+    origins : (d, 3)
+        Per rotation DOF, the pivot (the posed bone head); zero for translation DOFs.
+    """
+
+    matrices: np.ndarray
+    skinning: np.ndarray
+    axes: np.ndarray
+    origins: np.ndarray
+
+
+class Rig:
+    """A bone tree with rest matrices, DOF limits and locks.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Unique bone names, parents first.
+    parents : (b,) array_like of int
+        Parent of each bone; -1 for bone 0 (the root) only, ``parents[i] < i`` otherwise.
+    matrix_local : (b, 4, 4) array_like
+        Rest matrices in armature space (Blender's ``bone.matrix_local``).
+    lengths : (b,) array_like
+        Bone lengths (head to tail), positive.
+    lower, upper : (d,) array_like, optional
+        DOF bounds; default unbounded location and ±π rotations.
+    locked : (d,) array_like of bool, optional
+        DOFs that solves never change.
+    rotation_modes : sequence of str, optional
+        Euler order of each bone (one of :data:`solver.rotations.EULER_ORDERS`), default ``"XYZ"``.
+
+    Raises
+    ------
+    SolverError
+        For a malformed tree (names, parents), non-rigid or non-finite rest matrices, zero-length bones,
+        NaN or inverted limits; the message names the bones or DOFs.
+    """
+
+    def __init__(
+        self,
+        names,
+        parents,
+        matrix_local,
+        lengths,
+        lower=None,
+        upper=None,
+        locked=None,
+        rotation_modes=None,
+    ):
+        self.names: tuple[str, ...] = tuple(str(n) for n in names)
+        nb = len(self.names)
+        if nb == 0:
+            raise SolverError("a rig needs at least one bone")
+        if len(set(self.names)) != nb:
+            dup = sorted({n for n in self.names if self.names.count(n) > 1})
+            raise SolverError(f"bone names must be unique; repeated: {', '.join(dup)}")
+        self.parents = _readonly(np.array(parents, dtype=np.int64).reshape(-1))
+        if self.parents.size != nb:
+            raise SolverError(f"got {nb} bone names but {self.parents.size} parents")
+        bad = np.flatnonzero(self.parents[1:] >= np.arange(1, nb)) + 1
+        bad = np.union1d(bad, np.flatnonzero(self.parents[1:] < 0) + 1)
+        if self.parents[0] != -1:
+            raise SolverError(f"bone 0 ({self.names[0]!r}) must be the root (parent -1)", bones=[0])
+        if bad.size:
+            b = int(bad[0])
+            raise SolverError(
+                f"bones {self._bone_list(bad)} must have a parent listed before them (bone {b} "
+                f"{self.names[b]!r} has parent {int(self.parents[b])}); only bone 0 is a root",
+                bones=bad,
+            )
+        M = np.array(matrix_local, dtype=np.float64)
+        if M.shape != (nb, 4, 4):
+            raise SolverError(f"matrix_local must have shape ({nb}, 4, 4), got {M.shape}")
+        bad = np.flatnonzero(~np.all(np.isfinite(M), axis=(1, 2)))
+        if bad.size:
+            raise SolverError(f"rest matrices of bones {self._bone_list(bad)} are not finite", bones=bad)
+        R = M[:, :3, :3]
+        off = np.abs(R.transpose(0, 2, 1) @ R - np.eye(3)).max(axis=(1, 2))
+        row = np.abs(M[:, 3] - [0, 0, 0, 1]).max(axis=1)
+        bad = np.flatnonzero(
+            (off > ORTHONORMAL_TOLERANCE) | (np.linalg.det(R) <= 0) | (row > ORTHONORMAL_TOLERANCE)
+        )
+        if bad.size:
+            raise SolverError(
+                f"rest matrices of bones {self._bone_list(bad)} are not rigid (a rotation with "
+                "determinant +1 and a translation; Blender's bone.matrix_local has no scale)",
+                bones=bad,
+            )
+        self.matrix_local = _readonly(M)
+        L = np.array(lengths, dtype=np.float64).reshape(-1)
+        if L.size != nb:
+            raise SolverError(f"got {nb} bones but {L.size} lengths")
+        longest = np.max(np.abs(L[np.isfinite(L)]), initial=0.0)
+        bad = np.flatnonzero(~np.isfinite(L) | (MIN_RELATIVE_LENGTH * max(longest, 1e-300) >= L))
+        if bad.size:
+            raise SolverError(
+                f"bones {self._bone_list(bad)} have zero, negative or non-finite length "
+                f"(e.g. {self.names[bad[0]]!r}: {float(L[bad[0]])})",
+                bones=bad,
+            )
+        self.lengths = _readonly(L)
+        modes = tuple(rotation_modes) if rotation_modes is not None else ("XYZ",) * nb
+        if len(modes) != nb:
+            raise SolverError(f"got {nb} bones but {len(modes)} rotation modes")
+        bad = [b for b, m in enumerate(modes) if m not in EULER_ORDERS]
+        if bad:
+            raise SolverError(
+                f"bones {self._bone_list(bad)} have rotation mode {modes[bad[0]]!r}; DOFs are Euler "
+                f"angles in one of {', '.join(EULER_ORDERS)} (convert quaternions with "
+                "Rig.theta_from_basis)",
+                bones=bad,
+            )
+        self.rotation_modes: tuple[str, ...] = modes
+
+        nd = 6 + 3 * (nb - 1)
+        self.dof_bone = _readonly(np.concatenate([[0, 0, 0, 0, 0, 0], np.repeat(np.arange(1, nb), 3)]))
+        self.is_rotation = _readonly(np.arange(nd) >= 3)
+        self.dof_component = _readonly(np.concatenate([[0, 1, 2], np.tile([0, 1, 2], nb)]))
+        self.dof_names: tuple[str, ...] = tuple(
+            f"{self.names[b]}.{'rotation' if rot else 'location'}.{'xyz'[c]}"
+            for b, rot, c in zip(self.dof_bone, self.is_rotation, self.dof_component, strict=True)
+        )
+        default_lo = np.where(self.is_rotation, -np.pi, -np.inf)
+        lo = default_lo if lower is None else np.array(lower, dtype=np.float64).reshape(-1)
+        hi = -default_lo if upper is None else np.array(upper, dtype=np.float64).reshape(-1)
+        for what, a in (("lower", lo), ("upper", hi)):
+            if a.size != nd:
+                raise SolverError(f"{what} limits need {nd} values (one per DOF), got {a.size}")
+            bad = np.flatnonzero(np.isnan(a))
+            if bad.size:
+                raise SolverError(
+                    f"{what} limits of DOFs {self._dof_list(bad)} are NaN", dofs=bad, bones=self.dof_bone[bad]
+                )
+        bad = np.flatnonzero(lo > hi)
+        if bad.size:
+            d = int(bad[0])
+            raise SolverError(
+                f"limits of DOFs {self._dof_list(bad)} are inverted (lower > upper, e.g. "
+                f"{self.dof_names[d]}: {float(lo[d])} > {float(hi[d])})",
+                dofs=bad,
+                bones=self.dof_bone[bad],
+            )
+        self.lower = _readonly(lo)
+        self.upper = _readonly(hi)
+        lk = np.zeros(nd, bool) if locked is None else np.array(locked, dtype=bool).reshape(-1)
+        if lk.size != nd:
+            raise SolverError(f"locked needs {nd} flags (one per DOF), got {lk.size}")
+        self.locked = _readonly(lk)
+
+        # Constant parts of forward kinematics.
+        inv_local = np.linalg.inv(M)
+        offset = M.copy()
+        offset[1:] = inv_local[self.parents[1:]] @ M[1:]
+        self._offset = _readonly(offset)  # parent_rest^-1 @ rest (the root: its rest matrix)
+        self._inv_local = _readonly(inv_local)
+        depth = np.zeros(nb, np.int64)
+        for b in range(1, nb):
+            depth[b] = depth[self.parents[b]] + 1
+        self._doubling_steps = int(np.ceil(np.log2(depth.max() + 1)))
+        self._order_groups = [
+            (order_axes(m), np.array([b for b in range(nb) if self.rotation_modes[b] == m]))
+            for m in EULER_ORDERS
+            if m in self.rotation_modes
+        ]
+        # Index of bone b's rotation DOF for component c: rot_dof[b, c].
+        self._rot_dof = _readonly(np.arange(nb)[:, None] * 3 + 3 + np.arange(3)[None, :])
+
+    # ------------------------------------------------------------------ construction
+
+    @classmethod
+    def from_bones(cls, names, parents, heads, tails, z_axes, **limits) -> Rig:
+        """A rig from bone heads, tails and z axes in armature space (the z axis sets the roll).
+
+        Parameters
+        ----------
+        names, parents
+            As for :class:`Rig`.
+        heads, tails : (b, 3) array_like
+        z_axes : (b, 3) array_like
+            A direction for each bone's z axis; only its part perpendicular to the bone is used.
+        **limits
+            ``lower``, ``upper``, ``locked``, ``rotation_modes`` as for :class:`Rig`.
+        """
+        H = np.asarray(heads, dtype=np.float64)
+        T = np.asarray(tails, dtype=np.float64)
+        Z = np.asarray(z_axes, dtype=np.float64)
+        names = list(names)
+        if H.shape != T.shape or H.shape != Z.shape or H.shape != (len(names), 3):
+            raise SolverError(
+                f"heads, tails and z_axes must each have shape ({len(names)}, 3), got "
+                f"{H.shape}, {T.shape}, {Z.shape}"
+            )
+        lengths = np.linalg.norm(T - H, axis=1)
+        longest = lengths.max(initial=0.0)
+        short = np.flatnonzero(~(lengths > MIN_RELATIVE_LENGTH * max(longest, 1e-300)))
+        if short.size:
+            raise SolverError(
+                f"bones {describe_ids(short)} ({', '.join(names[i] for i in short[:5])}) have zero length "
+                "(head == tail)",
+                bones=short,
+            )
+        y = (T - H) / lengths[:, None]
+        z = Z - (Z * y).sum(1, keepdims=True) * y
+        zn = np.linalg.norm(z, axis=1)
+        bad = np.flatnonzero(~(zn > 1e-9 * np.maximum(np.linalg.norm(Z, axis=1), 1e-300)))
+        if bad.size:
+            raise SolverError(
+                f"bones {describe_ids(bad)} ({', '.join(names[i] for i in bad[:5])}) have a z axis "
+                "parallel to the bone",
+                bones=bad,
+            )
+        z /= zn[:, None]
+        x = np.cross(y, z)
+        M = np.zeros((len(names), 4, 4))
+        M[:, :3, 0], M[:, :3, 1], M[:, :3, 2], M[:, :3, 3] = x, y, z, H
+        M[:, 3, 3] = 1.0
+        return cls(names, parents, M, lengths, **limits)
+
+    def _bone_list(self, ids) -> str:
+        ids = np.unique(np.asarray(ids, dtype=np.int64))
+        shown = ", ".join(f"{int(i)} {self.names[i]!r}" for i in ids[:6])
+        return shown if ids.size <= 6 else f"{shown}, … ({ids.size} in all)"
+
+    def _dof_list(self, ids) -> str:
+        ids = np.unique(np.asarray(ids, dtype=np.int64))
+        shown = ", ".join(f"{int(i)} ({self.dof_names[i]})" for i in ids[:6])
+        return shown if ids.size <= 6 else f"{shown}, … ({ids.size} in all)"
+
+    # ------------------------------------------------------------------ sizes and lookups
+
+    @property
+    def n_bones(self) -> int:
+        return len(self.names)
+
+    @property
+    def n_dofs(self) -> int:
+        return 6 + 3 * (self.n_bones - 1)
+
+    @property
+    def rest(self) -> np.ndarray:
+        """(d,) the rest pose: all zeros (identity ``matrix_basis`` for every bone)."""
+        return np.zeros(self.n_dofs)
+
+    @property
+    def heads(self) -> np.ndarray:
+        """(b, 3) rest head positions."""
+        return self.matrix_local[:, :3, 3]
+
+    @property
+    def tails(self) -> np.ndarray:
+        """(b, 3) rest tail positions."""
+        return self.heads + self.lengths[:, None] * self.matrix_local[:, :3, 1]
+
+    def bone_index(self, name: str) -> int:
+        """Index of the bone called ``name``."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise SolverError(f"the rig has no bone called {name!r}") from None
+
+    def bone_dofs(self, bone: int | str) -> np.ndarray:
+        """DOF indices of one bone (6 for the root, 3 otherwise)."""
+        b = self.bone_index(bone) if isinstance(bone, str) else int(bone)
+        if not 0 <= b < self.n_bones:
+            raise SolverError(f"bone index {b} is out of range 0..{self.n_bones - 1}")
+        return np.flatnonzero(self.dof_bone == b)
+
+    def rotation_dof(self, bone: int, component: int) -> int:
+        """Index of the DOF rotating ``bone`` about its local axis ``component`` (0 = x, 1 = y, 2 = z)."""
+        return int(self._rot_dof[bone, component])
+
+    @cached_property
+    def subtree(self) -> np.ndarray:
+        """(b, b) bool: ``subtree[i, j]`` when bone i is bone j or one of its descendants."""
+        D = np.eye(self.n_bones, dtype=bool)
+        for b in range(1, self.n_bones):
+            D[b] |= D[self.parents[b]]
+        return _readonly(D)
+
+    def clip(self, theta) -> np.ndarray:
+        """(d,) θ clipped into the limits."""
+        return np.clip(self.check_theta(theta), self.lower, self.upper)
+
+    def check_theta(self, theta, what: str = "theta") -> np.ndarray:
+        """(d,) float64 copy of θ; raises SolverError unless it has one finite value per DOF."""
+        t = np.array(theta, dtype=np.float64).reshape(-1)
+        if t.size != self.n_dofs:
+            raise SolverError(f"{what} needs {self.n_dofs} values (one per DOF), got {t.size}")
+        bad = np.flatnonzero(~np.isfinite(t))
+        if bad.size:
+            raise SolverError(
+                f"{what} is not finite at DOFs {self._dof_list(bad)}", dofs=bad, bones=self.dof_bone[bad]
+            )
+        return t
+
+    # ------------------------------------------------------------------ Blender round trip
+
+    def euler(self, theta) -> np.ndarray:
+        """(b, 3) each bone's Euler angles (Blender's ``rotation_euler``)."""
+        return self.check_theta(theta)[3:].reshape(-1, 3)
+
+    def rotations(self, theta) -> np.ndarray:
+        """(b, 3, 3) each bone's local rotation matrix."""
+        return self._rotations(self.euler(theta))
+
+    def _rotations(self, angles: np.ndarray) -> np.ndarray:
+        R = np.empty((self.n_bones, 3, 3))
+        for (i, j, k), bones in self._order_groups:
+            a = angles[bones]
+            R[bones] = axis_rotation(a[:, k], k) @ axis_rotation(a[:, j], j) @ axis_rotation(a[:, i], i)
+        return R
+
+    def basis(self, theta) -> np.ndarray:
+        """(b, 4, 4) each bone's local transform (Blender's ``pose_bone.matrix_basis``)."""
+        t = self.check_theta(theta)
+        B = np.zeros((self.n_bones, 4, 4))
+        B[:, :3, :3] = self.rotations(t)
+        B[0, :3, 3] = t[:3]
+        B[:, 3, 3] = 1.0
+        return B
+
+    def theta_from_basis(self, basis, compatible=None) -> np.ndarray:
+        """(d,) the DOF vector of local transforms (b, 4, 4) (Blender's ``matrix_basis`` per bone).
+
+        Parameters
+        ----------
+        basis : (b, 4, 4) array_like
+            Rigid local transforms; only the root may translate.
+        compatible : (d,) array_like, optional
+            A nearby θ: each bone's Euler angles are chosen closest to it (no 2π jumps between keys).
+
+        Raises
+        ------
+        SolverError
+            If a basis is not rigid, or a non-root bone translates (the rig has no such DOF).
+        """
+        B = np.asarray(basis, dtype=np.float64)
+        if B.shape != (self.n_bones, 4, 4) or not np.all(np.isfinite(B)):
+            raise SolverError(f"basis must be finite with shape ({self.n_bones}, 4, 4), got {B.shape}")
+        R = B[:, :3, :3]
+        off = np.abs(R.transpose(0, 2, 1) @ R - np.eye(3)).max(axis=(1, 2))
+        bad = np.flatnonzero((off > ORTHONORMAL_TOLERANCE) | (np.linalg.det(R) <= 0))
+        if bad.size:
+            raise SolverError(
+                f"local transforms of bones {self._bone_list(bad)} are not rotations (scale or shear)",
+                bones=bad,
+            )
+        scale = max(float(self.lengths.max()), 1.0)
+        moved = np.flatnonzero(np.abs(B[1:, :3, 3]).max(axis=1) > 1e-9 * scale) + 1
+        if moved.size:
+            raise SolverError(
+                f"bones {self._bone_list(moved)} have a location offset; only the root translates",
+                bones=moved,
+            )
+        ref = None if compatible is None else self.check_theta(compatible, "compatible")[3:].reshape(-1, 3)
+        theta = np.zeros(self.n_dofs)
+        theta[:3] = B[0, :3, 3]
+        angles = np.empty((self.n_bones, 3))
+        for mode in set(self.rotation_modes):
+            bones = np.array([b for b in range(self.n_bones) if self.rotation_modes[b] == mode])
+            angles[bones] = matrix_to_euler(R[bones], mode, None if ref is None else ref[bones])
+        theta[3:] = angles.ravel()
+        return theta
+
+    # ------------------------------------------------------------------ forward kinematics
+
+    def pose_matrices(self, theta) -> np.ndarray:
+        """(b, 4, 4) posed armature-space bone matrices (Blender's ``pose_bone.matrix``)."""
+        return self.kinematics(theta, derivatives=False).matrices
+
+    def kinematics(self, theta, derivatives: bool = True) -> Kinematics:
+        """Forward kinematics of θ (d,), with the DOF axes and pivots unless ``derivatives`` is False."""
+        return self._kinematics(self.check_theta(theta), derivatives)
+
+    def _kinematics(self, t: np.ndarray, derivatives: bool) -> Kinematics:
+        """:meth:`kinematics` of a checked θ. Chains of parent products are formed by pointer doubling
+        (``log2(depth)`` batched steps instead of one step per tree level)."""
+        nb, nd = self.n_bones, self.n_dofs
+        angles = t[3:].reshape(nb, 3)
+        rot = self._rotations(angles)
+        local = self._offset.copy()  # parent_rest^-1 @ rest @ basis
+        local[0, :3, 3] += self._offset[0, :3, :3] @ t[:3]
+        local[:, :3, :3] = local[:, :3, :3] @ rot
+        P = local
+        ancestor = self.parents.copy()
+        for _ in range(self._doubling_steps):
+            go = np.flatnonzero(ancestor >= 0)
+            P = P.copy()
+            P[go] = P[ancestor[go]] @ P[go]
+            ancestor[go] = ancestor[ancestor[go]]
+        skin = (P @ self._inv_local)[:, :3]
+        axes = np.zeros((nd, 3))
+        origins = np.zeros((nd, 3))
+        if derivatives:
+            before = np.empty((nb, 4, 4))  # each bone's frame before its own rotation
+            before[0] = self._offset[0]
+            before[0, :3, 3] = P[0, :3, 3]
+            before[1:] = P[self.parents[1:]] @ self._offset[1:]
+            axes[:3] = self.matrix_local[0, :3, :3].T
+            Q = before[:, :3, :3]
+            for (i, j, k), bones in self._order_groups:
+                Rk = axis_rotation(angles[bones, k], k)
+                QRk = Q[bones] @ Rk
+                axes[self._rot_dof[bones, k]] = Q[bones, :, k]
+                axes[self._rot_dof[bones, j]] = QRk[:, :, j]
+                axes[self._rot_dof[bones, i]] = (QRk @ axis_rotation(angles[bones, j], j))[:, :, i]
+            origins[3:] = np.repeat(before[:, :3, 3], 3, axis=0)
+        return Kinematics(matrices=P, skinning=skin, axes=axes, origins=origins)

@@ -1,0 +1,362 @@
+"""Linear blend skinning as Blender's Armature modifier does it, with analytic derivatives.
+
+Conventions:
+
+* Weights are a sparse ``(n_vertices, n_bones)`` matrix (Blender's vertex groups, one column per deform
+  bone). The Armature modifier divides each vertex's weights by their sum (Preserve Volume off), so a
+  :class:`SkinnedMesh` takes weights whose rows sum to one (:func:`normalize_vertex_groups` turns raw
+  vertex-group weights into that); a row of zeros is a vertex no bone moves, which Blender leaves in
+  place, and so does this module.
+* The posed position of vertex ``v`` is ``sum_b w[v, b] (pose[b] @ matrix_local[b]^-1) @ rest[v]``, all
+  in armature space (see :mod:`solver.rig`).
+* A surface point ``(face, bary)`` of the rest mesh is posed with its face: its position is the
+  barycentric combination of the posed corners, its normal the unit normal of the posed triangle
+  ``(p1 - p0) x (p2 - p0)`` (zero for a triangle posed into a degenerate one).
+* Derivatives are with respect to the rig's DOF vector θ (see :class:`solver.rig.Rig`). A rotation DOF
+  turns every point downstream of its bone about the DOF's axis ``ω`` through the bone's head ``o``:
+  ``d/dθ (S_b x) = ω x (S_b x - o)``, blended with the skin weights of the bone's subtree. Forward
+  Jacobians (:meth:`SkinnedMesh.point_jacobian`) cost ``O(points x DOFs)``; the objective's gradient
+  uses the reverse (adjoint) form, which costs ``O(points + bones)``.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+
+import numpy as np
+from scipy import sparse
+
+from geodesics import SurfacePoints, TriMesh
+from geodesics.errors import MeshError
+
+from .errors import SolverError, describe_ids
+from .rig import Kinematics, Rig
+
+#: Row sums of normalized weights may miss one by this much.
+WEIGHT_TOLERANCE = 1e-6
+
+
+def normalize_vertex_groups(weights) -> sparse.csr_matrix:
+    """Blender's per-vertex normalization of raw vertex-group weights.
+
+    Parameters
+    ----------
+    weights : (n, b) array_like or sparse matrix
+        Non-negative raw weights (vertex group ``b`` of deform bone ``b``).
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix
+        Each nonzero row divided by its sum; rows that sum to zero stay zero (unmoved vertices).
+    """
+    W = _as_csr(weights)
+    _check_nonnegative(W)
+    total = np.asarray(W.sum(axis=1)).ravel()
+    scale = np.divide(1.0, total, out=np.zeros_like(total), where=total > 0)
+    return sparse.csr_matrix(sparse.diags(scale) @ W)
+
+
+def _as_csr(weights) -> sparse.csr_matrix:
+    W = sparse.csr_matrix(weights, dtype=np.float64) if sparse.issparse(weights) else None
+    if W is None:
+        dense = np.asarray(weights, dtype=np.float64)
+        if dense.ndim != 2:
+            raise SolverError(f"skin weights must be a 2D (vertices, bones) matrix, got shape {dense.shape}")
+        W = sparse.csr_matrix(dense)
+    W.sum_duplicates()
+    W.eliminate_zeros()
+    return W
+
+
+def _check_nonnegative(W: sparse.csr_matrix) -> None:
+    rows = np.repeat(np.arange(W.shape[0]), np.diff(W.indptr))
+    bad = ~np.isfinite(W.data)
+    if np.any(bad):
+        raise SolverError(
+            f"skin weights of vertices {describe_ids(rows[bad])} are NaN or infinite", vertices=rows[bad]
+        )
+    bad = W.data < 0
+    if np.any(bad):
+        raise SolverError(
+            f"skin weights of vertices {describe_ids(rows[bad])} are negative (e.g. vertex "
+            f"{int(rows[bad][0])}, bone {int(W.indices[bad][0])}: {float(W.data[bad][0])!r})",
+            vertices=rows[bad],
+            bones=W.indices[bad],
+        )
+
+
+class SkinnedMesh:
+    """A rest mesh bound to a rig by sparse linear-blend-skinning weights.
+
+    Parameters
+    ----------
+    mesh : TriMesh
+        The rest mesh, in armature space.
+    rig : Rig
+    weights : (n_vertices, n_bones) array_like or scipy sparse matrix
+        Non-negative, each row summing to one (or all zero: a vertex no bone moves).
+
+    Raises
+    ------
+    SolverError
+        For a shape mismatch, NaN, negative or unnormalized weights (naming the vertices).
+    """
+
+    def __init__(self, mesh: TriMesh, rig: Rig, weights):
+        if not isinstance(mesh, TriMesh):
+            raise SolverError(f"mesh must be a geodesics.TriMesh, got {type(mesh).__name__}")
+        if not isinstance(rig, Rig):
+            raise SolverError(f"rig must be a solver.Rig, got {type(rig).__name__}")
+        W = _as_csr(weights)
+        if W.shape != (mesh.n_vertices, rig.n_bones):
+            raise SolverError(
+                f"skin weights must have shape (n_vertices, n_bones) = ({mesh.n_vertices}, "
+                f"{rig.n_bones}), got {W.shape}"
+            )
+        _check_nonnegative(W)
+        total = np.asarray(W.sum(axis=1)).ravel()
+        bad = np.flatnonzero((total != 0) & (np.abs(total - 1) > WEIGHT_TOLERANCE))
+        if bad.size:
+            raise SolverError(
+                f"skin weights of vertices {describe_ids(bad)} do not sum to one (e.g. vertex "
+                f"{int(bad[0])}: {float(total[bad[0]])}); normalize them with normalize_vertex_groups",
+                vertices=bad,
+            )
+        self.mesh = mesh
+        self.rig = rig
+        self.weights = normalize_vertex_groups(W)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.mesh!r}, {self.rig.n_bones} bones, {self.rig.n_dofs} DOFs)"
+
+    @cached_property
+    def size(self) -> float:
+        """The rest mesh's bounding-box diagonal: the manipulator's characteristic size."""
+        return self.mesh.bounding_diagonal
+
+    # ------------------------------------------------------------------ posing
+
+    def posed_vertices(self, theta) -> np.ndarray:
+        """(n, 3) posed vertex positions at pose θ (d,)."""
+        return self._all_vertices.positions(self.rig.kinematics(theta, derivatives=False))
+
+    @cached_property
+    def _all_vertices(self) -> VertexSkin:
+        return VertexSkin(self)
+
+    def posed_points(self, theta, points: SurfacePoints) -> tuple[np.ndarray, np.ndarray]:
+        """Posed positions (k, 3) and unit normals (k, 3) of surface points of the rest mesh."""
+        skin = self.point_skin([points])
+        p, n, _ = skin.sets[0].geometry(
+            skin.vertices.positions(self.rig.kinematics(theta, derivatives=False))
+        )
+        return p, n
+
+    def vertex_jacobian(self, theta, vertex_ids=None) -> tuple[np.ndarray, np.ndarray]:
+        """Posed positions (m, 3) of vertices (default: all) and their Jacobians (m, 3, d)."""
+        ids = None if vertex_ids is None else self._check_vertex_ids(vertex_ids)
+        skin = self.vertex_skin(ids)
+        kin = self.rig.kinematics(theta)
+        return skin.positions(kin), skin.jacobian(kin)
+
+    def point_jacobian(
+        self, theta, points: SurfacePoints
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Positions (k, 3), normals (k, 3) and their Jacobians (k, 3, d), (k, 3, d) at pose θ."""
+        skin = self.point_skin([points])
+        kin = self.rig.kinematics(theta)
+        J = skin.vertices.jacobian(kin)
+        pts = skin.sets[0]
+        p, n, (inv, e1, e2) = pts.geometry(skin.vertices.positions(kin))
+        Jc = J[pts.corners]  # (k, 3 corners, 3, d)
+        dp = np.einsum("kc,kcid->kid", pts.bary, Jc)
+        de1, de2 = Jc[:, 1] - Jc[:, 0], Jc[:, 2] - Jc[:, 0]
+        du = np.cross(de1, e2[:, :, None], axis=1) + np.cross(e1[:, :, None], de2, axis=1)
+        dn = (du - n[:, :, None] * np.einsum("ki,kid->kd", n, du)[:, None, :]) * inv[:, None, None]
+        return p, n, dp, dn
+
+    # ------------------------------------------------------------------ evaluators for solvers
+
+    def vertex_skin(self, vertex_ids=None) -> VertexSkin:
+        """A :class:`VertexSkin` posing the given vertices (default: all)."""
+        return VertexSkin(self, vertex_ids)
+
+    def point_skin(self, point_sets, extra_vertices=None) -> PointSkin:
+        """A :class:`PointSkin` posing several sets of surface points (and optionally raw vertices)."""
+        return PointSkin(self, point_sets, extra_vertices)
+
+    def _check_vertex_ids(self, vertex_ids) -> np.ndarray:
+        ids = np.asarray(vertex_ids, dtype=np.int64).reshape(-1)
+        bad = np.flatnonzero((ids < 0) | (ids >= self.mesh.n_vertices))
+        if bad.size:
+            raise SolverError(
+                f"vertex indices {describe_ids(ids[bad])} are out of range 0..{self.mesh.n_vertices - 1}"
+            )
+        return ids
+
+
+class VertexSkin:
+    """Posed positions of a fixed subset of vertices, their Jacobians and vector-Jacobian products.
+
+    Parameters
+    ----------
+    skin : SkinnedMesh
+    vertex_ids : (m,) array_like of int, optional
+        Which vertices (default: all, in order).
+    """
+
+    def __init__(self, skin: SkinnedMesh, vertex_ids=None):
+        ids = np.arange(skin.mesh.n_vertices) if vertex_ids is None else np.asarray(vertex_ids, np.int64)
+        self.rig = skin.rig
+        self.vertex_ids = ids
+        self.rest = skin.mesh.vertices[ids]
+        self.weights = sparse.csr_matrix(skin.weights[ids])
+        self._weights_t = sparse.csr_matrix(self.weights.T)
+        self._static = np.flatnonzero(np.asarray(self.weights.sum(axis=1)).ravel() == 0)  # no bone moves them
+
+    def __len__(self) -> int:
+        return len(self.vertex_ids)
+
+    def positions(self, kin: Kinematics) -> np.ndarray:
+        """(m, 3) posed positions."""
+        M = (self.weights @ kin.skinning.reshape(-1, 12)).reshape(-1, 3, 4)
+        X = np.einsum("vij,vj->vi", M[:, :, :3], self.rest) + M[:, :, 3]
+        X[self._static] = self.rest[self._static]
+        return X
+
+    def jacobian(self, kin: Kinematics) -> np.ndarray:
+        """(m, 3, d) derivatives of the posed positions with respect to θ."""
+        rig = self.rig
+        W = self.weights.toarray()
+        D = rig.subtree.astype(np.float64)
+        # Blended skinning matrices of each bone's subtree, per vertex: (m, b, 3, 4).
+        M = np.einsum("vb,bc,bk->vck", W, D, kin.skinning.reshape(-1, 12)).reshape(len(W), -1, 3, 4)
+        Y = np.einsum("vcij,vj->vci", M[..., :3], self.rest) + M[..., 3]
+        Wsub = W @ D
+        bone = rig.dof_bone
+        J = np.empty((len(W), 3, rig.n_dofs))
+        J[:, :, :3] = Wsub[:, 0, None, None] * kin.axes[:3].T[None]
+        rot = np.flatnonzero(rig.is_rotation)
+        lever = Y[:, bone[rot]] - Wsub[:, bone[rot], None] * kin.origins[rot][None]
+        J[:, :, rot] = np.cross(kin.axes[rot][None], lever).transpose(0, 2, 1)  # (m, 3, rotation DOFs)
+        return J
+
+    def vjp(self, kin: Kinematics, adjoint: np.ndarray) -> np.ndarray:
+        """(d,) ``sum_v adjoint[v] . dposition[v]/dθ`` for an adjoint (m, 3), without the Jacobian."""
+        return self._dof_gradient(kin, self._bone_sums(adjoint))
+
+    def _bone_sums(self, adjoint: np.ndarray) -> np.ndarray:
+        """(4b, 3) per-bone sums of an adjoint (m, 3): rows ``j b + i`` hold ``sum_v w[v, b] rest[v, j]
+        adjoint[v]`` for j < 3 and, for j = 3, ``sum_v w[v, b] adjoint[v]``."""
+        nb = self.rig.n_bones
+        R = np.empty((4 * nb, 3))
+        R[3 * nb :] = self._weights_t @ adjoint
+        for j in range(3):
+            R[j * nb : (j + 1) * nb] = self._weights_t @ (self.rest[:, j, None] * adjoint)
+        return R
+
+    def _dof_gradient(self, kin: Kinematics, sums: np.ndarray) -> np.ndarray:
+        """(d,) the gradient from the per-bone sums of :meth:`_bone_sums`."""
+        rig = self.rig
+        nb = rig.n_bones
+        f = sums[3 * nb :]  # (b, 3) per-bone force
+        C = sums[: 3 * nb].reshape(3, nb, 3).transpose(1, 0, 2)  # (b, 3, 3): sum_v w x_v adjoint_v^T
+        RC = kin.skinning[:, :, :3] @ C
+        tau = np.stack([RC[:, 1, 2] - RC[:, 2, 1], RC[:, 2, 0] - RC[:, 0, 2], RC[:, 0, 1] - RC[:, 1, 0]], 1)
+        tau += cross(kin.skinning[:, :, 3], f)
+        D = rig.subtree
+        F = D.T.astype(np.float64) @ f
+        T = D.T.astype(np.float64) @ tau
+        bone = rig.dof_bone
+        moment = T[bone] - cross(kin.origins, F[bone])
+        moment[:3] = F[0]
+        return np.einsum("di,di->d", kin.axes, moment)
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross products of (k, 3) arrays (numpy's general ``cross`` is several times slower)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
+class PointSet:
+    """One set of k surface points of a :class:`PointSkin`: ``corners`` (k, 3) index its vertices."""
+
+    def __init__(self, corners: np.ndarray, bary: np.ndarray, n_vertices: int):
+        self.corners = corners
+        self.bary = bary
+        k = len(bary)
+        # One sparse (3k, m) operator maps vertex positions to the points' positions, first edges
+        # (p1 - p0) and second edges (p2 - p0); its transpose gathers their gradients per vertex.
+        rows = np.repeat(np.arange(3 * k), 3)
+        cols = np.tile(corners, (3, 1)).ravel()
+        values = np.concatenate([bary, np.tile([-1.0, 1.0, 0.0], (k, 1)), np.tile([-1.0, 0.0, 1.0], (k, 1))])
+        self._stack = sparse.csr_matrix((values.ravel(), (rows, cols)), shape=(3 * k, n_vertices))
+        self._stack_t = sparse.csr_matrix(self._stack.T)
+
+    def __len__(self) -> int:
+        return len(self.bary)
+
+    def geometry(self, V: np.ndarray):
+        """Positions (k, 3), unit normals (k, 3) and the triangle data the adjoint needs, from the posed
+        vertices V (m, 3)."""
+        k = len(self.bary)
+        Y = self._stack @ V
+        p, e1, e2 = Y[:k], Y[k : 2 * k], Y[2 * k :]
+        u = cross(e1, e2)
+        norm = np.sqrt(np.einsum("ki,ki->k", u, u))
+        inv = 1.0 / np.where(norm > 0, norm, np.inf)  # a degenerate posed triangle has no normal
+        return p, u * inv[:, None], (inv, e1, e2)
+
+    def adjoint(self, n: np.ndarray, aux, grad_p, grad_n) -> np.ndarray:
+        """(m, 3) per-vertex adjoint of ``grad_p . dp + grad_n . dn`` (either gradient may be None)."""
+        k = len(self.bary)
+        G = np.zeros((3 * k, 3))
+        if grad_p is not None:
+            G[:k] = grad_p
+        if grad_n is not None:
+            inv, e1, e2 = aux
+            gu = (grad_n - n * np.einsum("ki,ki->k", n, grad_n)[:, None]) * inv[:, None]
+            G[k : 2 * k] = cross(e2, gu)
+            G[2 * k :] = cross(gu, e1)
+        return self._stack_t @ G
+
+
+class PointSkin:
+    """Poses several sets of surface points (and raw vertices) through one shared :class:`VertexSkin`.
+
+    Parameters
+    ----------
+    skin : SkinnedMesh
+    point_sets : sequence of SurfacePoints
+        Points on ``skin.mesh``.
+    extra_vertices : (s,) array_like of int, optional
+        Vertices to pose as well (e.g. samples for a table penalty); their rows in the shared vertex
+        array are ``extra_rows``.
+    """
+
+    def __init__(self, skin: SkinnedMesh, point_sets, extra_vertices=None):
+        mesh = skin.mesh
+        faces = []
+        for points in point_sets:
+            if not isinstance(points, SurfacePoints):
+                raise SolverError(f"hand points must be geodesics.SurfacePoints, got {type(points).__name__}")
+            try:
+                points.validate(mesh)
+            except MeshError as error:
+                raise SolverError(f"hand points do not lie on the hand mesh: {error}") from None
+            faces.append(mesh.faces[points.faces])
+        extra = np.empty(0, np.int64) if extra_vertices is None else skin._check_vertex_ids(extra_vertices)
+        used = np.concatenate([f.ravel() for f in faces] + [extra])
+        ids, inverse = np.unique(used, return_inverse=True)
+        self.vertices = VertexSkin(skin, ids)
+        self.sets: list[PointSet] = []
+        start = 0
+        for points, f in zip(point_sets, faces, strict=True):
+            chunk = inverse[start : start + f.size].reshape(-1, 3)
+            self.sets.append(PointSet(chunk, points.bary, ids.size))
+            start += f.size
+        self.extra_rows = inverse[start:]

@@ -1,0 +1,223 @@
+"""Contact IK: every term's gradient against central differences, staged solves, scale invariance,
+cancellation, and bad input."""
+
+import numpy as np
+import pytest
+
+from geodesics import SurfacePoints
+from solver import Box, ContactIK, HalfSpace, Markers, SolverError, Weights, hands
+from solver.rotations import euler_to_matrix
+
+
+@pytest.fixture(scope="module")
+def hand():
+    return hands.make_hand("human")
+
+
+def problem(hand, per_patch=12, seed=0):
+    """The hand's own patch points at a random pose with opposed normals: (points, P, N, pose)."""
+    rng = np.random.default_rng(seed)
+    rig = hand.rig
+    points = SurfacePoints.concatenate(hand.contact_patches(per_patch, seed=seed).values())
+    truth = np.zeros(rig.n_dofs)
+    joints = rig.dof_bone != 0
+    truth[joints] = 0.5 * rng.uniform(rig.lower[joints], rig.upper[joints])
+    truth[:3] = [0.01, -0.02, 0.015]
+    truth[3:6] = [0.2, -0.1, 0.3]
+    P, N = hand.posed_points(truth, points)
+    return points, P, -N, truth
+
+
+def central_gradient(ik, theta, h=1e-6):
+    g = np.empty_like(theta)
+    for j in range(theta.size):
+        step = np.zeros_like(theta)
+        step[j] = h
+        g[j] = (ik.energy(theta + step, False)[0] - ik.energy(theta - step, False)[0]) / (2 * h)
+    return g
+
+
+ONLY = {
+    name: Weights(**{w: (value if w == key else 0.0) for w in "dnpmtk"})
+    for name, key, value in [
+        ("distance", "d", 1.0),
+        ("normal", "n", 1.0),
+        ("prior", "p", 10.0),
+        ("marker", "m", 1.0),
+        ("table", "t", 1.0),
+        ("keyed", "k", 10.0),
+    ]
+}
+
+
+@pytest.mark.parametrize(("term", "obstacle"), [(term, "half-space") for term in ONLY] + [("table", "box")])
+def test_every_term_has_the_exact_gradient(hand, term, obstacle):
+    points, P, N, truth = problem(hand)
+    rng = np.random.default_rng(7)
+    table = (
+        HalfSpace(point=[0, 0, -0.01], normal=[0.1, 0.2, 1.0])
+        if obstacle == "half-space"
+        else Box(
+            center=hand.posed_vertices(truth).mean(0),
+            half_extents=[0.07, 0.06, 0.05],
+            rotation=euler_to_matrix([0.1, 0.2, 0.3]),
+        )
+    )
+    ik = ContactIK(
+        hand,
+        points,
+        P,
+        N,
+        ONLY[term],
+        prior=0.1 * truth,
+        markers=Markers(points[::7], P[::7] + 0.01),
+        obstacle=table,
+        keyed=truth,
+    )
+    for trial in range(3):
+        noise = rng.normal(size=truth.size) * np.where(hand.rig.is_rotation, 0.2, 0.01)
+        theta = np.clip(truth + noise, hand.rig.lower, hand.rig.upper)
+        energy, terms, grad = ik.energy(theta)
+        assert terms[term] > 0 and energy == pytest.approx(terms[term])
+        numeric = central_gradient(ik, theta)
+        assert np.abs(grad - numeric).max() < 1e-5 * np.abs(numeric).max(), (term, trial)
+
+
+def test_solve_recovers_a_pose_and_reports_consistently(hand):
+    points, P, N, truth = problem(hand, per_patch=40)
+    ik = ContactIK(hand, points, P, N)
+    start = truth.copy()
+    start[6:] = 0.0
+    result = ik.solve(start)
+    assert result.status == "converged"
+    assert result.energy < 0.01 * result.start_energy
+    assert result.distances.mean() < 0.01 * hand.length
+    assert result.energy == pytest.approx(sum(result.terms.values()))
+    assert np.allclose(result.distances, ik.distances(result.theta))
+    assert set(result.terms) == {"distance", "normal", "prior"}
+    assert np.all(result.theta >= hand.rig.lower) and np.all(result.theta <= hand.rig.upper)
+    assert result.iterations > 0 and result.seconds > 0
+
+
+def test_root_only_stage_leaves_the_fingers_alone(hand):
+    """Staged solve (Contact Edit §5.6): with only the root free, no finger DOF changes at all."""
+    points, P, N, truth = problem(hand)
+    rig = hand.rig
+    start = np.where(rig.dof_bone == 0, 0.0, 0.3 * truth)
+    root = rig.dof_bone == 0
+    result = ContactIK(hand, points, P, N).solve(start, free=root)
+    assert np.array_equal(result.theta[~root], start[~root])
+    assert np.abs(result.theta[root] - start[root]).max() > 1e-3
+    assert result.energy < result.start_energy
+    # Then unlock everything, from the staged result.
+    final = ContactIK(hand, points, P, N).solve(result.theta)
+    assert final.energy < result.energy
+
+
+def test_locked_dofs_never_move(hand):
+    points, P, N, _ = problem(hand)
+    rig = hand.rig
+    locked = np.zeros(rig.n_dofs, bool)
+    locked[rig.bone_dofs("index_2")] = True
+    locked_rig = type(rig)(
+        rig.names, rig.parents, rig.matrix_local, rig.lengths, rig.lower, rig.upper, locked
+    )
+    skin = type(hand)(hand.mesh, locked_rig, hand.weights, hand.kind, hand.length, hand.chains)
+    result = ContactIK(skin, points, P, N).solve()
+    assert np.all(result.theta[locked] == 0.0)
+
+
+def test_scale_invariance(hand):
+    """A hand and its targets scaled by 100: the same joint angles, locations scaled by 100."""
+    points, P, N, truth = problem(hand, per_patch=10)
+    big = hands.make_hand("human", scale=100.0)
+    start = truth.copy()
+    start[6:] = 0.0
+    small_result = ContactIK(hand, points, P, N).solve(start)
+    big_start = start.copy()
+    big_start[:3] *= 100
+    big_result = ContactIK(big, points, 100 * P, N).solve(big_start)
+    rotation = hand.rig.is_rotation
+    assert np.abs(big_result.theta[rotation] - small_result.theta[rotation]).max() < 1e-5
+    assert np.abs(big_result.theta[:3] / 100 - small_result.theta[:3]).max() < 1e-5 * hand.length
+    assert big_result.energy == pytest.approx(small_result.energy, rel=1e-6)
+
+
+def test_cancel_from_progress_returns_the_best_pose(hand):
+    points, P, N, _ = problem(hand)
+    seen = []
+
+    def progress(info):
+        seen.append((info.energy, info.theta, dict(info.terms), info.iteration))
+        return info.iteration == 12
+
+    result = ContactIK(hand, points, P, N).solve(progress=progress)
+    assert result.status == "cancelled"
+    assert result.iterations == 12 == len(seen)
+    best = min(seen, key=lambda s: s[0])
+    assert result.energy == best[0] and np.array_equal(result.theta, best[1])
+    assert [s[3] for s in seen] == list(range(1, 13))
+    assert set(seen[0][2]) == {"distance", "normal", "prior"}
+
+
+def test_never_returns_nan(hand):
+    points, P, N, _ = problem(hand)
+
+    class Broken:
+        def evaluate(self, x):
+            return np.full(len(x), np.nan), np.zeros((len(x), 3))
+
+    result = ContactIK(hand, points, P, N, obstacle=Broken()).solve()
+    assert result.status == "stopped"
+    assert np.all(np.isfinite(result.theta)) and np.array_equal(result.theta, hand.rig.rest)
+
+
+def test_keyed_prior_and_algorithms(hand):
+    points, P, N, truth = problem(hand)
+    keyed = 0.5 * truth
+    free_result = ContactIK(hand, points, P, N, Weights(p=0.0)).solve()
+    keyed_result = ContactIK(hand, points, P, N, Weights(p=0.0, k=1000.0), keyed=keyed).solve()
+    assert np.abs(keyed_result.theta - keyed).max() < np.abs(free_result.theta - keyed).max()
+    fd = ContactIK(hand, points, P, N, gradient="finite-difference").solve(max_evaluations=60)
+    exact = ContactIK(hand, points, P, N).solve(max_evaluations=60)
+    assert fd.status == exact.status == "max evaluations"
+    for algorithm in ("lbfgs", "mma", "ccsaq"):
+        result = ContactIK(hand, points, P, N, algorithm=algorithm).solve(max_evaluations=40)
+        assert result.energy < result.start_energy
+
+
+def test_bad_input_names_what_and_where(hand):
+    points, P, N, _ = problem(hand)
+    k = len(points)
+    with pytest.raises(SolverError, match="no contacts"):
+        ContactIK(hand, SurfacePoints(np.empty(0, int), np.empty((0, 3))), P[:0], N[:0])
+    bad = P.copy()
+    bad[[4, 11]] = np.nan
+    with pytest.raises(SolverError, match="target points of contacts 4, 11 are NaN") as err:
+        ContactIK(hand, points, bad, N)
+    assert err.value.contacts.tolist() == [4, 11]
+    with pytest.raises(SolverError, match=f"got {k} hand points but {k - 1} target points"):
+        ContactIK(hand, points, P[1:], N)
+    zero = N.copy()
+    zero[3] = 0
+    with pytest.raises(SolverError, match="target normals of contacts 3 are zero"):
+        ContactIK(hand, points, P, zero)
+    with pytest.raises(SolverError, match="weight λp must be finite and non-negative"):
+        Weights(p=-1.0)
+    with pytest.raises(SolverError, match="weight λd must be finite"):
+        Weights(d=float("nan"))
+    with pytest.raises(SolverError, match="prior needs 54 values"):
+        ContactIK(hand, points, P, N, prior=np.zeros(3))
+    with pytest.raises(SolverError, match="unknown algorithm 'newton'"):
+        ContactIK(hand, points, P, N, algorithm="newton")
+    with pytest.raises(SolverError, match="SkinnedMesh"):
+        ContactIK(hand.mesh, points, P, N)
+    with pytest.raises(SolverError, match="do not lie on the hand mesh"):
+        ContactIK(hand, SurfacePoints([hand.mesh.n_faces], [[1, 0, 0]]), P[:1], N[:1])
+    ik = ContactIK(hand, points, P, N)
+    with pytest.raises(SolverError, match=r"theta0 is not finite at DOFs 6 \(hand.rotation.x\)"):
+        ik.solve(np.where(np.arange(54) == 6, np.nan, 0.0))
+    with pytest.raises(SolverError, match="free needs 54 flags"):
+        ik.solve(free=[True, False])
+    with pytest.raises(SolverError, match="marker"):
+        ContactIK(hand, points, P, N, markers=Markers(points[:3], P[:2]))
