@@ -1,1 +1,79 @@
-"""The modular puppet device: protocol, serial reader, rig reduction (arrives with the device issue)."""
+"""The modular puppet device (Glauser et al. 2016): protocol, serial reader, simulator, rig reduction,
+pose-space interpolation, and the binding of a live device to a rig.
+
+Device side:
+
+* :mod:`tangible.protocol` — the wire format (``PROTOCOL.md``): :func:`~tangible.protocol.encode`, the
+  streaming :class:`~tangible.protocol.Decoder`.
+* :class:`SerialReader` — a background reader over pyserial publishing immutable :class:`DeviceState`
+  snapshots; :class:`DeviceTopology` — the parent→children table behind it.
+* :class:`Simulator` — a device tree emitting frames to a pty or any pyserial port, with faults.
+* :mod:`tangible.joint` — the two-ring universal joint: sensed angles ↔ rotation.
+
+Rig side:
+
+* :class:`Skeleton` — bones, rest frames, node weights (filled from a Blender armature or a
+  ``solver.Rig``); sample poses are ``(p, b, 4)`` quaternions.
+* :func:`tangible.reachability.fit` — Eq. 1/7 by Gauss–Newton in the exponential map;
+  :func:`reduce` — greedy joints and the splitter integer program; :mod:`tangible.assembly` — the
+  instructions as text and SVG.
+* :class:`PoseSpace` — PCA/Delaunay/barycentric-slerp interpolation; :class:`Puppet` — joints to bones,
+  joints to scalars, calibration, evaluation per frame.
+
+Also :mod:`tangible.creatures` (procedural rigs with sample poses) and :mod:`tangible.benchmark` (the
+link, interpolation and Fig. 7 figures). Quaternions are ``(w, x, y, z)`` throughout
+(:mod:`tangible.rotations`).
+"""
+
+import logging
+
+from . import protocol
+from .device import SPLITTERS, DeviceTree, Piece, SplitterType
+from .errors import DeviceError, FrameError, ProtocolError, RigError, TangibleError
+from .joint import joint_angles, joint_rotation
+from .posespace import PoseSpace
+from .puppet import JointBinding, Puppet, PuppetPose, ScalarBinding, match_device
+from .reader import SerialReader, list_ports
+from .reduction import Kit, Reduction, reduce
+from .simulator import Faults, KeyframeMotion, RandomMotion, Simulator
+from .skeleton import Skeleton, area_weights
+from .topology import ComponentState, DeviceState, DeviceTopology
+
+# A library does not print: port trouble goes to the "tangible" loggers, silent unless the application
+# configures logging.
+logging.getLogger(__name__).addHandler(logging.NullHandler())
+
+__all__ = [
+    "SPLITTERS",
+    "ComponentState",
+    "DeviceError",
+    "DeviceState",
+    "DeviceTopology",
+    "DeviceTree",
+    "Faults",
+    "FrameError",
+    "JointBinding",
+    "KeyframeMotion",
+    "Kit",
+    "Piece",
+    "PoseSpace",
+    "ProtocolError",
+    "Puppet",
+    "PuppetPose",
+    "RandomMotion",
+    "Reduction",
+    "RigError",
+    "ScalarBinding",
+    "SerialReader",
+    "Simulator",
+    "Skeleton",
+    "SplitterType",
+    "TangibleError",
+    "area_weights",
+    "joint_angles",
+    "joint_rotation",
+    "list_ports",
+    "match_device",
+    "protocol",
+    "reduce",
+]

@@ -1,0 +1,61 @@
+"""The exceptions of the tangible package.
+
+Every error names what is wrong and where: the byte offset in a frame, the component id, the bone.
+Bone indices are also kept as arrays (``RigError.bones``) so that a user interface can select them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class TangibleError(Exception):
+    """Base class of every error the tangible package raises on purpose."""
+
+
+class ProtocolError(TangibleError, ValueError):
+    """The protocol API was misused: a message that cannot be encoded (an id out of range, a non-finite
+    angle, too many splitter slots) or a decoder fed something other than bytes.
+
+    The streaming :class:`tangible.protocol.Decoder` never raises this for bad *bytes*: corrupt input is
+    counted, not raised.
+    """
+
+
+class FrameError(ProtocolError):
+    """One frame handed to :func:`tangible.protocol.decode_frame` is malformed.
+
+    Attributes
+    ----------
+    reason : str
+        A short machine-readable cause: ``"cobs"``, ``"length"``, ``"crc"``, ``"version"``, ``"type"``,
+        ``"field"``, ``"oversize"``.
+    offset : int
+        Byte offset of the problem, in the decoded frame for ``"length"``/``"field"``/``"version"``/
+        ``"type"``/``"crc"`` (where the checksum starts) and in the encoded bytes for ``"cobs"``.
+    """
+
+    def __init__(self, message: str, *, reason: str, offset: int):
+        super().__init__(message)
+        self.reason = reason
+        self.offset = offset
+
+
+class DeviceError(TangibleError, RuntimeError):
+    """A device cannot be used as asked: a port URL that pyserial does not understand, a simulator asked
+    to unplug a port it does not own, or a connected device whose shape differs from the planned one."""
+
+
+class RigError(TangibleError, ValueError):
+    """A skeleton, its sample poses, a kit or a binding is not valid input.
+
+    ``bones`` holds the indices of the offending bones (empty when they do not apply).
+    """
+
+    def __init__(self, message: str, *, bones=None):
+        super().__init__(message)
+        self.bones = (
+            np.unique(np.asarray(bones, dtype=np.int64).ravel())
+            if bones is not None
+            else np.empty(0, np.int64)
+        )
