@@ -26,10 +26,13 @@ PLATFORM_TAGS = {
 }
 DEFAULT_PLATFORMS = ("linux-x64",)
 
-#: Pinned run-time dependencies per Python version (numpy comes with Blender).
+#: Pinned run-time dependencies per Python version (numpy comes with Blender). NLopt 2.9.1 is the newest
+#: release with wheels for all four platforms on both Pythons; its wheels declare numpy>=2 because they
+#: were built against numpy 2, whose C API also serves numpy 1.x, so they run on Blender 4.2-5.0's numpy
+#: 1.26 (Blender installs bundled wheels without resolving their requirements; the install test runs it).
 REQUIREMENTS = {
-    "3.11": ["scipy==1.15.3", "potpourri3d==1.4.0", "pyserial==3.5"],  # Blender 4.2-5.0: numpy 1.x
-    "3.13": ["scipy==1.15.3", "potpourri3d==1.4.0", "pyserial==3.5"],  # Blender 5.1+
+    "3.11": ["scipy==1.15.3", "potpourri3d==1.4.0", "pyserial==3.5", "nlopt==2.9.1"],  # Blender 4.2-5.0
+    "3.13": ["scipy==1.15.3", "potpourri3d==1.4.0", "pyserial==3.5", "nlopt==2.9.1"],  # Blender 5.1+
 }
 
 #: Our libraries, bundled as one pure-Python wheel.

@@ -11,6 +11,8 @@ HOTKEYS = (
     ("contact_edit.translate", "G", {}),
     ("contact_edit.rotate", "R", {}),
     ("contact_edit.bend", "B", {}),
+    ("contact_edit.solve", "E", {}),
+    ("contact_edit.flex_to_contact", "F", {}),
 )
 
 _items: list = []

@@ -2,6 +2,8 @@
 
 import bpy
 
+from . import posing
+
 
 class CONTACT_EDIT_UL_patches(bpy.types.UIList):
     """One row per patch: colour, name, point count, parent and pair."""
@@ -33,6 +35,7 @@ class VIEW3D_PT_contact_edit(bpy.types.Panel):
         column.prop(settings, "target")
         layout.prop(settings, "axis_method")
         layout.prop(settings, "deformed")
+        self.draw_solver(layout, settings)
 
         obj = context.active_object
         if obj is None or obj.type != "MESH":
@@ -56,6 +59,25 @@ class VIEW3D_PT_contact_edit(bpy.types.Panel):
         row = layout.row(align=True)
         row.operator("contact_edit.library_save", text="Save library", icon="EXPORT")
         row.operator("contact_edit.library_load", text="Load library", icon="IMPORT")
+
+    @staticmethod
+    def draw_solver(layout, settings) -> None:
+        box = layout.box()
+        row = box.row()
+        row.label(text="Pose", icon="ARMATURE_DATA")
+        row.operator("contact_edit.reset_weights", text="", icon="LOOP_BACK")
+        column = box.column(align=True)
+        column.prop(settings, "weight_distance")
+        column.prop(settings, "weight_normal")
+        column.prop(settings, "weight_prior")
+        box.prop(settings, "keyframe")
+        row = box.row(align=True)
+        for stage, label, _ in posing.STAGES:
+            solve = row.operator("contact_edit.solve", text=label.split()[0])
+            solve.stage, solve.keyframe = stage, settings.keyframe
+        box.operator("contact_edit.flex_to_contact", icon="VIEW_PAN").keyframe = settings.keyframe
+        if settings.last_solve:
+            box.label(text=settings.last_solve, icon="INFO")
 
 
 classes = (CONTACT_EDIT_UL_patches, VIEW3D_PT_contact_edit)

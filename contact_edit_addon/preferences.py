@@ -1,6 +1,8 @@
-"""Add-on preferences: the defaults new scenes start from."""
+"""Add-on preferences: the solver weights the Reset Weights button restores."""
 
 import bpy
+
+WEIGHTS = ("weight_distance", "weight_normal", "weight_prior")
 
 
 class CONTACT_EDIT_AP_preferences(bpy.types.AddonPreferences):
@@ -31,3 +33,13 @@ class CONTACT_EDIT_AP_preferences(bpy.types.AddonPreferences):
         column.prop(self, "weight_distance")
         column.prop(self, "weight_normal")
         column.prop(self, "weight_prior")
+
+
+def solver_weights(context) -> dict[str, float]:
+    """The preferred solver weights (the declared defaults when the add-on was registered by a script
+    rather than enabled, and so has no stored preferences)."""
+    addon = context.preferences.addons.get(__package__)
+    if addon is not None:
+        return {name: getattr(addon.preferences, name) for name in WEIGHTS}
+    properties = CONTACT_EDIT_AP_preferences.bl_rna.properties
+    return {name: properties[name].default for name in WEIGHTS}

@@ -60,6 +60,10 @@ class CONTACT_EDIT_PG_scene(bpy.types.PropertyGroup):
     weight_distance: bpy.props.FloatProperty(name="Distance (λd)", default=1.0, min=0.0)
     weight_normal: bpy.props.FloatProperty(name="Normals (λn)", default=1.0, min=0.0)
     weight_prior: bpy.props.FloatProperty(name="Rest pose (λp)", default=10.0, min=0.0)
+    keyframe: bpy.props.BoolProperty(
+        name="Keyframe", description="Key the solved pose on the current frame", default=False
+    )
+    last_solve: bpy.props.StringProperty(name="Last solve", description="How the last solve went")
 
 
 classes = (CONTACT_EDIT_PG_patch, CONTACT_EDIT_PG_object, CONTACT_EDIT_PG_scene)

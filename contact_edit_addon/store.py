@@ -1,12 +1,16 @@
-"""Reading and writing an object's contact set (kept as a contact file in its ``contact_edit.data``)."""
+"""Reading and writing an object's contact set (kept as a contact file in its ``contact_edit.data``),
+and pairing files: a hand's and an object's sets together, what ``contact-edit pose --contacts`` reads.
+"""
 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import bpy
 
 from geodesics import ContactError, ContactSet
+from geodesics.contacts import write_atomically
 
 from . import bridge
 
@@ -34,8 +38,14 @@ def load(obj: bpy.types.Object, deformed: bool = False) -> ContactSet:
         data = json.loads(text)
     except json.JSONDecodeError as err:
         raise ContactError(f"the contact data stored on '{obj.name}' is damaged: {err}") from None
-    same = data.get("mesh", {}).get("hash") == mesh.topology_hash
-    return ContactSet.from_dict(data, mesh, remap=not same, source=f"the contacts of '{obj.name}'")
+    return _from_dict(data, mesh, f"the contacts of '{obj.name}'")
+
+
+def _from_dict(data, mesh, source: str) -> ContactSet:
+    """A set from a contact file's content, projected onto ``mesh`` if it was made for another one."""
+    info = data.get("mesh") if isinstance(data, dict) else None
+    same = isinstance(info, dict) and info.get("hash") == mesh.topology_hash
+    return ContactSet.from_dict(data, mesh, remap=not same, source=source)
 
 
 def save(obj: bpy.types.Object, contacts: ContactSet, colors: dict | None = None) -> None:
@@ -62,3 +72,35 @@ def active_patch_name(obj: bpy.types.Object) -> str | None:
     if not entries:
         return None
     return entries[min(obj.contact_edit.active, len(entries) - 1)].name
+
+
+#: The pairing file's format tag.
+PAIRING_FORMAT = "contact-edit/pairing"
+
+
+def save_pairing(path, hand: bpy.types.Object, target: bpy.types.Object) -> None:
+    """Write the hand's and the object's contact sets (with their pairs) to one file, atomically."""
+    data = {
+        "format": PAIRING_FORMAT,
+        "version": 1,
+        "hand": load(hand).to_dict(),
+        "object": load(target).to_dict(),
+    }
+    write_atomically(path, json.dumps(data, indent=1))
+
+
+def load_pairing(path, hand: bpy.types.Object, target: bpy.types.Object) -> None:
+    """Give the hand and the object the contact sets of a pairing file (projected onto their meshes
+    if the file was made for others). Either both objects change or neither does."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ContactError(f"{path}: cannot read a pairing file: {err}") from None
+    if not isinstance(data, dict) or data.get("format") != PAIRING_FORMAT or data.get("version") != 1:
+        raise ContactError(f'{path}: not a pairing file (expected "format": "{PAIRING_FORMAT}", version 1)')
+    sets = {}
+    for key, obj in (("hand", hand), ("object", target)):
+        sets[key] = _from_dict(data.get(key), bridge.trimesh(obj), f"{path} ({key})")
+    save(hand, sets["hand"])
+    save(target, sets["object"])

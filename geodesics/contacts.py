@@ -292,16 +292,7 @@ class ContactSet:
 
     def save(self, path) -> None:
         """Write the contact file atomically (a complete file or none; never half a file)."""
-        path = Path(path)
-        text = json.dumps(self.to_dict(), indent=1)
-        handle, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        try:
-            with os.fdopen(handle, "w", encoding="utf-8") as f:
-                f.write(text)
-            os.replace(temp, path)
-        except BaseException:
-            Path(temp).unlink(missing_ok=True)
-            raise
+        write_atomically(path, json.dumps(self.to_dict(), indent=1))
 
     @classmethod
     def load(cls, path, mesh: TriMesh, remap: bool = False) -> ContactSet:
@@ -452,3 +443,16 @@ def _link(entry: dict, where: str) -> Link:
     leave = _complex_array([data.get("leave")], f"{where}: link.leave")[0]
     arrive = _complex_array([data.get("arrive")], f"{where}: link.arrive")[0]
     return Link(parent, float(length), complex(leave), complex(arrive))
+
+
+def write_atomically(path, text: str) -> None:
+    """Write a text file so that it is either complete or untouched, never half written."""
+    path = Path(path)
+    handle, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(handle, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(temp, path)
+    except BaseException:
+        Path(temp).unlink(missing_ok=True)
+        raise

@@ -1,5 +1,6 @@
 """Running scripts in the real bpy module, each in a fresh process with its own temporary Blender user
-folder (so tests never touch a real user's configuration)."""
+folder (so tests never touch a real user's configuration). Scripts report with ``result(value)`` and
+may use ``keyed_frames(obj)`` (the frames an object's action keys)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,13 @@ import json, sys
 import bpy
 def result(value):
     print("RESULT " + json.dumps(value))
+def keyed_frames(obj):
+    from bpy_extras import anim_utils
+    data = obj.animation_data
+    if data is None or data.action is None:
+        return []
+    bag = anim_utils.action_get_channelbag_for_slot(data.action, data.action_slot)
+    return sorted({k.co[0] for curve in bag.fcurves for k in curve.keyframe_points})
 """
 
 

@@ -53,12 +53,42 @@ def test_extension_validates_installs_enables_and_uninstalls(extension, tmp_path
         operators = hasattr(bpy.ops.contact_edit, "paint") and hasattr(bpy.types.Object, "contact_edit")
         site = os.path.join({str(tmp_path)!r}, "extensions/.local/lib/python3.11/site-packages")
         bundled = sorted(os.listdir(site))
+        # The bundled NLopt (built against numpy 2) on Blender's numpy 1.x, imported from the bundle only.
+        import subprocess, sys
+        probe = "\\n".join([
+            "import sys",
+            "sys.path.insert(0, %r)" % site,
+            "import numpy, nlopt",
+            "assert nlopt.__file__.startswith(%r), nlopt.__file__" % site,
+            "def f(x, grad):",
+            "    if grad.size:",
+            "        grad[:] = 2 * (x - 1)",
+            "    return float(((x - 1) ** 2).sum())",
+            "opt = nlopt.opt(nlopt.LD_SLSQP, 2)",
+            "opt.set_lower_bounds([-1, -1]); opt.set_upper_bounds([1, 0.5])",
+            "opt.set_min_objective(f); opt.set_ftol_rel(1e-12)",
+            "print(nlopt.__version__, numpy.__version__, *opt.optimize([0.0, 0.0]))",
+        ])
+        nlopt_run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
+        # A whole contact solve through the installed extension's operators.
+        bpy.ops.contact_edit.add_hand(kind="human")
+        bpy.ops.contact_edit.add_object(shape="sphere")
+        hand = bpy.context.scene.contact_edit.hand
+        bpy.context.view_layer.objects.active = hand
+        pads = [v.co.z < -0.005 and v.co.y > 0.17 for v in hand.data.vertices]
+        hand.data.vertices.foreach_set("select", pads)
+        bpy.ops.contact_edit.paint(name="tip", source="SELECTION")
+        bpy.ops.contact_edit.transfer(patch="tip", location=(0, 0, 0.04), direction=(0, 1, 0))
+        solved = bpy.ops.contact_edit.solve(stage="ALL")
+        summary = bpy.context.scene.contact_edit.last_solve
         repos = [r.module for r in bpy.context.preferences.extensions.repos]
         index = repos.index("user_default")
         removed = bpy.ops.extensions.package_uninstall(repo_index=index, pkg_id="contact_edit")
         left = os.path.join({str(tmp_path)!r}, "extensions/user_default/contact_edit")
         result(dict(errors=errors if isinstance(errors, list) else [], installed=list(installed),
                     enabled=enabled, operators=operators, bundled=bundled, removed=list(removed),
+                    nlopt=[nlopt_run.returncode, nlopt_run.stdout, nlopt_run.stderr],
+                    solved=list(solved), summary=summary,
                     still_enabled="bl_ext.user_default.contact_edit" in bpy.context.preferences.addons,
                     properties_left=hasattr(bpy.types.Object, "contact_edit"),
                     files_left=os.path.exists(left)))
@@ -67,8 +97,13 @@ def test_extension_validates_installs_enables_and_uninstalls(extension, tmp_path
     )
     assert out["errors"] == []
     assert out["installed"] == ["FINISHED"] and out["enabled"] and out["operators"]
-    for package in ("geodesics", "solver", "tangible", "scipy", "potpourri3d", "serial"):
+    for package in ("geodesics", "solver", "tangible", "scipy", "potpourri3d", "serial", "nlopt"):
         assert package in out["bundled"]
+    code, printed, errors = out["nlopt"]
+    assert code == 0, errors
+    version, numpy, *x = printed.split()
+    assert (version, numpy) == ("2.9.1", "1.26.4") and [float(v) for v in x] == pytest.approx([1.0, 0.5])
+    assert out["solved"] == ["FINISHED"] and "contacts in 1 patch pairs" in out["summary"]
     assert "numpy" not in out["bundled"]  # Blender's own
     assert out["removed"] == ["FINISHED"]
     assert not out["still_enabled"] and not out["properties_left"] and not out["files_left"]

@@ -1,6 +1,6 @@
-"""The one place where Blender data becomes the libraries' numpy types and back.
+"""Blender meshes as :class:`geodesics.TriMesh` and surface points, and back.
 
-Meshes: the rest shape of a mesh object (its own vertices, no modifiers) or, when asked, its evaluated
+The rest shape of a mesh object (its own vertices, no modifiers) or, when asked, its evaluated
 deformed shape, triangulated by :meth:`geodesics.TriMesh.from_polygons` (our triangulation, so that
 intrinsic data stays valid however Blender triangulates for display). Meshes are cached by a
 fingerprint of their topology and coordinates, so repeated operations on an unchanged mesh are cheap.
@@ -12,24 +12,14 @@ import hashlib
 
 import bpy
 import numpy as np
+from scipy import sparse
 
 from geodesics import MeshError, SurfacePoints, TriMesh
 
+from .errors import BridgeError
+
 _cache: dict[tuple, TriMesh] = {}
 _CACHE_SIZE = 8
-
-
-class BridgeError(RuntimeError):
-    """Blender data that cannot be turned into what the libraries need, in an animator's words.
-
-    ``object_name``, ``polygons`` and ``vertices`` say where, so the interface can select them.
-    """
-
-    def __init__(self, message: str, object_name: str = "", polygons=(), vertices=()):
-        super().__init__(message)
-        self.object_name = object_name
-        self.polygons = np.asarray(polygons, np.int64)
-        self.vertices = np.asarray(vertices, np.int64)
 
 
 def mesh_arrays(mesh: bpy.types.Mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -102,7 +92,21 @@ def select_elements(obj: bpy.types.Object, polygons: np.ndarray, vertices: np.nd
     vertex_flags[corners[np.repeat(polygon_flags, sizes)]] = True
     mesh.polygons.foreach_set("select", polygon_flags)
     mesh.vertices.foreach_set("select", vertex_flags)
-    mesh.edges.foreach_set("select", np.zeros(len(mesh.edges), bool))
+    # No edge selected is the absence of the attribute. (Removing it also sidesteps Blender 5.0.1 meshes
+    # made by from_pydata, whose ".select_edge" is mistyped INT32_2D and crashes edge.select.)
+    edges = mesh.attributes.get(".select_edge")
+    if edges is not None:
+        mesh.attributes.remove(edges)
+
+
+def vertex_group_weights(obj: bpy.types.Object) -> sparse.csr_matrix:
+    """(n_vertices, n_groups) the weights of a mesh object's vertex groups (column = group index)."""
+    entries = [(v.index, g.group, g.weight) for v in obj.data.vertices for g in v.groups]
+    data = np.array(entries, np.float64).reshape(-1, 3)
+    shape = (len(obj.data.vertices), len(obj.vertex_groups))
+    return sparse.csr_matrix(
+        (data[:, 2], (data[:, 0].astype(np.int64), data[:, 1].astype(np.int64))), shape=shape
+    )
 
 
 def selected_vertices(obj: bpy.types.Object) -> np.ndarray:

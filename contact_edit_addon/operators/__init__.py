@@ -1,6 +1,14 @@
 """The operators under ``bpy.ops.contact_edit``: each works interactively and with explicit properties
 in background mode, so scripts run the same tools an animator clicks."""
 
-from . import axis, edit, manage, paint, proxy, transfer
+from . import axis, edit, manage, paint, proxy, solve, transfer
 
-classes = (*paint.classes, *axis.classes, *transfer.classes, *edit.classes, *manage.classes, *proxy.classes)
+classes = (
+    *paint.classes,
+    *axis.classes,
+    *transfer.classes,
+    *edit.classes,
+    *manage.classes,
+    *proxy.classes,
+    *solve.classes,
+)

@@ -9,11 +9,12 @@ import numpy as np
 from bpy_extras import view3d_utils
 
 from geodesics import ContactError, GeodesicError, MeshError, SurfacePoints, tangent_from_3d
+from solver import SolverError
 
 from .. import bridge
 
 #: Errors the libraries raise for bad input; the operators report them instead of failing.
-USER_ERRORS = (ContactError, GeodesicError, MeshError, bridge.BridgeError)
+USER_ERRORS = (ContactError, GeodesicError, MeshError, SolverError, bridge.BridgeError)
 
 
 def guarded(operator: bpy.types.Operator, action: Callable[[], set]) -> set:
@@ -86,6 +87,14 @@ def poll_mesh(cls, context) -> bool:
     obj = context.active_object
     if obj is None or obj.type != "MESH":
         cls.poll_message_set("Select a mesh object (the hand or the object) first")
+        return False
+    return True
+
+
+def poll_hand_and_object(cls, context) -> bool:
+    settings = context.scene.contact_edit
+    if settings.hand is None or settings.target is None:
+        cls.poll_message_set("Choose the hand and the object in the Contact tab first")
         return False
     return True
 

@@ -6,7 +6,7 @@ import bpy
 import numpy as np
 
 from .. import store
-from .common import guarded, nearest_point, ray_hit, surface_direction
+from .common import guarded, nearest_point, poll_hand_and_object, ray_hit, surface_direction
 
 
 class CONTACT_EDIT_OT_transfer(bpy.types.Operator):
@@ -39,8 +39,7 @@ class CONTACT_EDIT_OT_transfer(bpy.types.Operator):
     @classmethod
     def poll(cls, context):
         settings = context.scene.contact_edit
-        if settings.hand is None or settings.target is None:
-            cls.poll_message_set("Choose the hand and the object in the Contact tab first")
+        if not poll_hand_and_object(cls, context):
             return False
         if not settings.hand.contact_edit.patches:
             cls.poll_message_set(f"The hand '{settings.hand.name}' has no contact patches yet")

@@ -1,0 +1,178 @@
+"""The procedural hands and objects of :mod:`solver` as Blender objects (the demo scene, and the
+viewport's Add menu, so that anyone can try contact editing without a rigged hand of their own).
+
+A hand becomes an armature whose bones have exactly the rig's rest matrices, a mesh skinned to it by
+vertex groups through an Armature modifier, and a local Limit Rotation constraint per joint carrying
+the rig's anatomical limits, so Blender shows the same limits the solver obeys.
+"""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+from mathutils import Vector
+
+from geodesics import TriMesh
+from solver import hands, objects
+from solver.hands import Hand
+
+#: What the Add menu offers: name -> (label, builder of a TriMesh in metres).
+OBJECTS = {
+    "mug": ("Mug", objects.mug),
+    "sphere": ("Sphere", objects.sphere),
+    "cylinder": ("Cylinder", objects.cylinder),
+    "box": ("Box", objects.box),
+    "plate": ("Plate", objects.plate),
+}
+
+
+def mesh_object(name: str, mesh: TriMesh, collection: bpy.types.Collection) -> bpy.types.Object:
+    """A new mesh object with the triangles of ``mesh``, smooth shaded, linked into ``collection``."""
+    data = bpy.data.meshes.new(name)
+    faces = mesh.faces
+    data.vertices.add(mesh.n_vertices)
+    data.vertices.foreach_set("co", mesh.vertices.astype(np.float32).ravel())
+    data.loops.add(faces.size)
+    data.loops.foreach_set("vertex_index", faces.astype(np.int32).ravel())
+    data.polygons.add(len(faces))
+    data.polygons.foreach_set("loop_start", np.arange(0, faces.size, 3, dtype=np.int32))
+    data.polygons.foreach_set("use_smooth", np.ones(len(faces), bool))
+    data.update(calc_edges=True)
+    data.validate()
+    obj = bpy.data.objects.new(name, data)
+    collection.objects.link(obj)
+    return obj
+
+
+def hand_objects(
+    hand: Hand, name: str, collection: bpy.types.Collection
+) -> tuple[bpy.types.Object, bpy.types.Object]:
+    """The hand as (mesh object, armature object): the mesh is parented to and deformed by the armature."""
+    rig = hand.rig
+    armature = bpy.data.objects.new(f"{name} rig", bpy.data.armatures.new(f"{name} rig"))
+    collection.objects.link(armature)
+    _add_bones(armature, rig)
+    for b, bone_name in enumerate(rig.names):
+        pose_bone = armature.pose.bones[bone_name]
+        pose_bone.rotation_mode = rig.rotation_modes[b]
+        if b == 0:
+            continue
+        limit = pose_bone.constraints.new("LIMIT_ROTATION")
+        limit.owner_space = "LOCAL"
+        for c, axis in enumerate("xyz"):
+            d = rig.rotation_dof(b, c)
+            setattr(limit, f"use_limit_{axis}", True)
+            setattr(limit, f"min_{axis}", float(rig.lower[d]))
+            setattr(limit, f"max_{axis}", float(rig.upper[d]))
+    obj = mesh_object(name, hand.mesh, collection)
+    groups = [obj.vertex_groups.new(name=n) for n in rig.names]
+    W = hand.weights.tocsc()
+    for b, group in enumerate(groups):
+        rows = W.indices[W.indptr[b] : W.indptr[b + 1]]
+        values = W.data[W.indptr[b] : W.indptr[b + 1]]
+        for value in np.unique(values):  # one call per distinct weight, not per vertex
+            group.add(rows[values == value].tolist(), float(value), "REPLACE")
+    modifier = obj.modifiers.new("Armature", "ARMATURE")
+    modifier.object = armature
+    obj.parent = armature
+    return obj, armature
+
+
+def _add_bones(armature: bpy.types.Object, rig) -> None:
+    """Edit bones with the rig's heads, tails and rolls (edit mode is needed to create bones)."""
+    view_layer = bpy.context.view_layer
+    previous = view_layer.objects.active
+    view_layer.objects.active = armature
+    bpy.ops.object.mode_set(mode="EDIT")
+    try:
+        edit_bones = []
+        for b, bone_name in enumerate(rig.names):
+            bone = armature.data.edit_bones.new(bone_name)
+            bone.head, bone.tail = Vector(rig.heads[b]), Vector(rig.tails[b])
+            bone.align_roll(Vector(rig.matrix_local[b, :3, 2]))
+            bone.parent = edit_bones[rig.parents[b]] if b else None
+            bone.use_connect = False
+            edit_bones.append(bone)
+    finally:
+        bpy.ops.object.mode_set(mode="OBJECT")
+        view_layer.objects.active = previous
+
+
+def _select_only(context, obj: bpy.types.Object) -> None:
+    for other in context.selected_objects:
+        other.select_set(False)
+    obj.select_set(True)
+    context.view_layer.objects.active = obj
+
+
+class CONTACT_EDIT_OT_add_hand(bpy.types.Operator):
+    """Add a procedural rigged hand (or tentacle) to pose against objects"""
+
+    bl_idname = "contact_edit.add_hand"
+    bl_label = "Procedural Hand"
+    bl_options = {"REGISTER", "UNDO"}
+
+    kind: bpy.props.EnumProperty(
+        name="Kind", items=[(k, k.title(), f"The procedural {k} manipulator") for k in hands.KINDS]
+    )
+    scale: bpy.props.FloatProperty(
+        name="Scale", default=1.0, min=1e-3, description="1 is life size in metres"
+    )
+
+    def execute(self, context):
+        hand = hands.make_hand(self.kind, self.scale)
+        obj, armature = hand_objects(hand, self.kind.title(), context.collection)
+        armature.location = context.scene.cursor.location
+        context.scene.contact_edit.hand = obj
+        _select_only(context, obj)
+        self.report({"INFO"}, f"Added '{obj.name}' ({hand.rig.n_dofs} DOF) as the hand")
+        return {"FINISHED"}
+
+
+class CONTACT_EDIT_OT_add_object(bpy.types.Operator):
+    """Add a procedural object to grasp (a mug has a genus-1 handle; a plate has two holes)"""
+
+    bl_idname = "contact_edit.add_object"
+    bl_label = "Procedural Object"
+    bl_options = {"REGISTER", "UNDO"}
+
+    shape: bpy.props.EnumProperty(
+        name="Shape", items=[(k, label, f"A {label.lower()}") for k, (label, _) in OBJECTS.items()]
+    )
+
+    def execute(self, context):
+        label, build = OBJECTS[self.shape]
+        obj = mesh_object(label, build(), context.collection)
+        obj.location = context.scene.cursor.location
+        context.scene.contact_edit.target = obj
+        _select_only(context, obj)
+        self.report({"INFO"}, f"Added '{obj.name}' as the object")
+        return {"FINISHED"}
+
+
+class VIEW3D_MT_contact_edit_add(bpy.types.Menu):
+    bl_label = "Contact Edit"
+
+    def draw(self, context):
+        layout = self.layout
+        for kind in hands.KINDS:
+            label = "Tentacle" if kind == "tentacle" else f"{kind.title()} Hand"
+            layout.operator(CONTACT_EDIT_OT_add_hand.bl_idname, text=label).kind = kind
+        layout.separator()
+        for key, (label, _) in OBJECTS.items():
+            layout.operator(CONTACT_EDIT_OT_add_object.bl_idname, text=label).shape = key
+
+
+def draw_add_menu(self, context) -> None:
+    self.layout.menu(VIEW3D_MT_contact_edit_add.__name__, icon="HAND")
+
+
+classes = (CONTACT_EDIT_OT_add_hand, CONTACT_EDIT_OT_add_object, VIEW3D_MT_contact_edit_add)
+
+
+def register() -> None:
+    bpy.types.VIEW3D_MT_add.append(draw_add_menu)
+
+
+def unregister() -> None:
+    bpy.types.VIEW3D_MT_add.remove(draw_add_menu)

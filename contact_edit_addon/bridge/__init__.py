@@ -1,0 +1,47 @@
+"""The one place where Blender data becomes the libraries' numpy types and back: meshes and surface
+points (:mod:`.mesh`), a hand's armature and vertex groups as a skinned rig, and poses (:mod:`.armature`).
+"""
+
+from .armature import (
+    PosedHand,
+    apply_pose,
+    armature_modifier,
+    current_pose,
+    posed_hand,
+    rotation_path,
+    selected_bones,
+    set_bone_rotation,
+    to_quaternion,
+)
+from .errors import BridgeError
+from .mesh import (
+    mesh_arrays,
+    object_to_world,
+    points_from_hits,
+    points_from_vertices,
+    select_elements,
+    selected_vertices,
+    trimesh,
+    world_to_object,
+)
+
+__all__ = [
+    "BridgeError",
+    "PosedHand",
+    "apply_pose",
+    "armature_modifier",
+    "current_pose",
+    "mesh_arrays",
+    "object_to_world",
+    "points_from_hits",
+    "points_from_vertices",
+    "posed_hand",
+    "rotation_path",
+    "select_elements",
+    "selected_bones",
+    "selected_vertices",
+    "set_bone_rotation",
+    "to_quaternion",
+    "trimesh",
+    "world_to_object",
+]

@@ -1,0 +1,206 @@
+"""The embedded default job: a procedural human hand grasps a mug, the way an animator would do it.
+
+Every step runs the add-on's own operators, as clicks would: paint fingertip, finger and palm patches
+from vertex selections; curl the fingers onto the mug (flex to contact) to see where they land;
+transfer each patch that touches onto the mug there; open the hand again and key it; solve the pose
+from the contacts alone and key it 24 frames later. The scene is saved with its contacts, the contact
+pairing is written as a file for ``contact-edit pose``, and a small Cycles render shows the grasp.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import bpy
+import numpy as np
+from mathutils import Matrix, Vector
+from scipy.spatial import cKDTree
+
+from solver import hands, objects
+
+from . import assets, bridge, store
+
+#: Patches painted on the hand: name -> the bone whose palm-side faces it covers.
+PATCHES = {
+    "palm": "hand",
+    "thumb tip": "thumb_3",
+    "index tip": "index_3",
+    "middle tip": "middle_3",
+    "ring tip": "ring_3",
+    "pinky tip": "pinky_3",
+    "index middle": "index_2",
+    "middle middle": "middle_2",
+    "ring middle": "ring_2",
+    "pinky middle": "pinky_2",
+}
+#: The palm patch is the middle of the palm: its faces within this distance of the palm's centre (metres).
+PALM_RADIUS = 0.025
+#: A patch is transferred where it lands if the curled hand brings it this close to the mug (metres).
+LANDING_DISTANCE = 0.01
+#: Gap left between the palm and the mug when placing the hand (metres).
+PALM_GAP = 0.004
+OPEN_FRAME, GRASP_FRAME = 1, 24
+
+
+@dataclass(frozen=True)
+class DemoResult:
+    """What the demo made and measured."""
+
+    blend: Path
+    image: Path | None
+    contacts_file: Path
+    patches: int
+    contacts: int
+    summary: str
+    seconds: float
+
+
+def run(out: Path, render: bool = True, progress: Callable[[str], None] = lambda _: None) -> DemoResult:
+    """Build, pose, save and render the demo scene into the folder ``out`` (created if needed)."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    progress("building the hand and the mug")
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    hand = hands.make_hand("human")
+    hand_obj, armature = assets.hand_objects(hand, "Hand", scene.collection)
+    mug = assets.mesh_object("Mug", objects.mug(), scene.collection)
+    scene.contact_edit.hand, scene.contact_edit.target = hand_obj, mug
+    armature.matrix_world = Matrix(_hand_placement(hand))
+
+    progress("painting patches on the hand")
+    bpy.context.view_layer.objects.active = hand_obj
+    for name, bone in PATCHES.items():
+        faces = hand.palmar_faces(hand.rig.bone_index(bone))
+        if name == "palm":
+            faces = faces[
+                np.linalg.norm(
+                    hand.mesh.vertices[hand.mesh.faces[faces]].mean(axis=1) - _palm_centre(hand), axis=1
+                )
+                < PALM_RADIUS
+            ]
+        bridge.select_elements(hand_obj, np.empty(0, np.int64), np.unique(hand.mesh.faces[faces]))
+        bpy.ops.contact_edit.paint(name=name, source="SELECTION", object_name=hand_obj.name)
+
+    progress("curling the fingers onto the mug")
+    for bone in armature.pose.bones:
+        bone.select = bone.name not in {"forearm", "hand"}
+    bpy.ops.contact_edit.flex_to_contact()
+    landed = _landing(hand_obj, armature)
+
+    progress(f"transferring {len(landed)} patches onto the mug")
+    for name, (location, direction) in landed.items():
+        bpy.ops.contact_edit.transfer(patch=name, location=location, direction=direction, hierarchy=False)
+
+    progress("solving the grasp from the open hand")
+    posed = bridge.posed_hand(hand_obj, store.load(hand_obj).mesh.faces)
+    scene.frame_set(OPEN_FRAME)
+    bridge.apply_pose(posed, posed.rig.rest, OPEN_FRAME)
+    scene.frame_set(GRASP_FRAME)
+    bpy.ops.contact_edit.solve(stage="ALL", keyframe=True)
+    scene.frame_start, scene.frame_end = OPEN_FRAME, GRASP_FRAME
+
+    contacts_file = out / "contacts.json"
+    store.save_pairing(contacts_file, hand_obj, mug)
+    image = None
+    if render:
+        progress("rendering (Cycles, CPU)")
+        image = out / "demo.png"
+        _render(scene, [hand_obj, mug], image)
+    blend = out / "demo.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), check_existing=False)
+    hand_set = store.load(hand_obj)
+    return DemoResult(
+        blend=blend,
+        image=image,
+        contacts_file=contacts_file,
+        patches=len(landed),
+        contacts=sum(len(hand_set[name]) for name in landed),
+        summary=scene.contact_edit.last_solve,
+        seconds=time.perf_counter() - start,
+    )
+
+
+def _hand_placement(hand: hands.Hand) -> np.ndarray:
+    """The armature's world matrix: fingers along -y around the upright mug, palm facing it from -x
+    (the handle is on +x), thumb up, the palm's centre just off the mug's wall at mid height."""
+    rotation = np.array([[0.0, 0.0, -1.0], [0.0, -1.0, 0.0], [-1.0, 0.0, 0.0]])  # x->-z, y->-y, z->-x
+    centre = _palm_centre(hand)
+    radius = 0.04  # objects.mug's default
+    wanted = np.array([-(radius + PALM_GAP), 0.0, 0.5 * 0.095])
+    M = np.eye(4)
+    M[:3, :3] = rotation
+    M[:3, 3] = wanted - rotation @ centre
+    return M
+
+
+def _palm_centre(hand: hands.Hand) -> np.ndarray:
+    palm = hand.palmar_faces(hand.rig.bone_index("hand"))
+    return hand.mesh.vertices[np.unique(hand.mesh.faces[palm])].mean(axis=0)
+
+
+def _landing(hand_obj, armature) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """For each hand patch the curled hand brings near the mug: where its axis starts (world) and the
+    world direction it leaves in."""
+    contacts = store.load(hand_obj)
+    posed = bridge.posed_hand(hand_obj, contacts.mesh.faces)
+    theta = bridge.current_pose(armature, posed.rig.names)
+    mug = bpy.context.scene.contact_edit.target
+    mug_mesh = bridge.trimesh(mug)
+    tree = cKDTree(bridge.object_to_world(mug, mug_mesh.vertices))
+    A = np.array(armature.matrix_world)
+    landed = {}
+    for name in contacts:
+        axis = contacts[name].axis.points
+        positions, _ = posed.skin.posed_points(theta, axis[[0, 1]])
+        world = positions @ A[:3, :3].T + A[:3, 3]
+        patch_points, _ = posed.skin.posed_points(theta, contacts[name].points)
+        gap, _ = tree.query(patch_points @ A[:3, :3].T + A[:3, 3])
+        if gap.min() < LANDING_DISTANCE:
+            landed[name] = (world[0], world[1] - world[0])
+    return landed
+
+
+def _render(scene, shown, path: Path) -> None:
+    """A small, quick Cycles CPU render framing the shown objects."""
+    colours = {"Hand": (0.80, 0.57, 0.45, 1.0), "Mug": (0.20, 0.42, 0.75, 1.0)}
+    for obj in shown:
+        material = bpy.data.materials.new(obj.name)
+        material.use_nodes = True
+        material.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = colours[obj.name]
+        obj.data.materials.append(material)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    corners = []
+    for obj in shown:
+        evaluated = obj.evaluated_get(depsgraph)
+        corners += [evaluated.matrix_world @ Vector(c) for c in evaluated.bound_box]
+    lo, hi = np.min(corners, axis=0), np.max(corners, axis=0)
+    centre, radius = Vector((lo + hi) / 2), float(np.linalg.norm(hi - lo) / 2)
+    camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(camera)
+    view = Vector((0.35, -1.0, 0.45)).normalized()
+    distance = radius / math.tan(camera.data.angle / 2) * 1.05
+    camera.location = centre + view * distance
+    camera.rotation_euler = (-view).to_track_quat("-Z", "Y").to_euler()
+    scene.camera = camera
+    sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
+    sun.data.energy = 3.0
+    sun.rotation_euler = (math.radians(40), math.radians(-20), math.radians(-30))
+    scene.collection.objects.link(sun)
+    world = bpy.data.worlds.new("World")
+    world.use_nodes = True
+    world.node_tree.nodes["Background"].inputs["Color"].default_value = (0.8, 0.8, 0.82, 1.0)
+    scene.world = world
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = 16
+    scene.cycles.use_denoising = False
+    scene.render.resolution_x, scene.render.resolution_y = 480, 360
+    scene.render.image_settings.file_format = "PNG"
+    scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True)

@@ -1,0 +1,184 @@
+"""Pose the hand's armature from the contacts: contact IK (§4.4) and flex-to-contact (1988).
+
+Interactively, the solve runs in a worker thread (it is pure numpy; Blender data is only touched here,
+on the main thread) and the viewport shows each better pose as it is found, as the user study asked.
+Esc stops and keeps the best pose so far; right-click cancels and restores the pose it started from.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import bpy
+
+from .. import bridge, posing, preferences
+from .common import USER_ERRORS, guarded, poll_hand_and_object
+
+#: Viewport refreshes per second while solving.
+REDRAW_RATE = 20.0
+
+
+def poll_paired(cls, context) -> bool:
+    settings = context.scene.contact_edit
+    if not poll_hand_and_object(cls, context):
+        return False
+    if not any(entry.pair for entry in settings.hand.contact_edit.patches):
+        cls.poll_message_set(
+            f"No patch of '{settings.hand.name}' is paired yet: transfer one onto the object"
+        )
+        return False
+    return True
+
+
+class CONTACT_EDIT_OT_solve(bpy.types.Operator):
+    """Pose the hand's armature so that its contact patches meet their pairs on the object"""
+
+    bl_idname = "contact_edit.solve"
+    bl_label = "Solve Pose"
+    bl_options = {"REGISTER", "UNDO"}
+
+    stage: bpy.props.EnumProperty(name="Solve", items=posing.STAGES, default="ALL")
+    keyframe: bpy.props.BoolProperty(name="Keyframe", description="Key the solved pose on the current frame")
+    max_evaluations: bpy.props.IntProperty(
+        name="Evaluations", default=2000, min=1, description="Stop after this many energy evaluations"
+    )
+
+    @classmethod
+    def poll(cls, context):
+        return poll_paired(cls, context)
+
+    def execute(self, context):
+        return guarded(self, lambda: self._solve(context))
+
+    def _solve(self, context):
+        problem = posing.problem(context.scene, self.stage)
+        result = problem.ik.solve(problem.theta0, problem.free, max_evaluations=self.max_evaluations)
+        self._finish(context, problem, result)
+        return {"FINISHED"}
+
+    def _finish(self, context, problem, result) -> None:
+        problem.apply(result.theta, context.scene.frame_current if self.keyframe else None)
+        context.scene.contact_edit.last_solve = posing.summary(problem, result)
+        self.report({"INFO"}, context.scene.contact_edit.last_solve)
+
+    # ------------------------------------------------------------------ interactive
+
+    def invoke(self, context, event):
+        if context.area is None or context.window is None:
+            return self.execute(context)
+        try:
+            self._problem = posing.problem(context.scene, self.stage)
+        except USER_ERRORS as err:
+            self.report({"ERROR"}, str(err))
+            return {"CANCELLED"}
+        self._latest = None
+        self._result = None
+        self._error = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._work, daemon=True)
+        self._thread.start()
+        self._timer = context.window_manager.event_timer_add(1.0 / REDRAW_RATE, window=context.window)
+        context.window_manager.progress_begin(0, self.max_evaluations)
+        context.window_manager.modal_handler_add(self)
+        context.area.header_text_set("Solving… · Esc: stop and keep the best pose · Right-click: cancel")
+        return {"RUNNING_MODAL"}
+
+    def _work(self) -> None:
+        """The solve, off the main thread; it only records progress and the result."""
+        problem = self._problem
+
+        def progress(step):
+            self._latest = step
+            return self._stop.is_set()
+
+        try:
+            self._result = problem.ik.solve(problem.theta0, problem.free, progress, self.max_evaluations)
+        except Exception as err:  # reported on the main thread
+            self._error = err
+
+    def modal(self, context, event):
+        if event.type in {"ESC", "RIGHTMOUSE"} and event.value == "PRESS":
+            self._stop.set()
+            self._thread.join()
+            if event.type == "RIGHTMOUSE":
+                self._problem.apply(self._problem.theta0)
+                return self._end(context, {"CANCELLED"})
+        if event.type == "TIMER" and self._thread.is_alive():
+            step = self._latest
+            if step is not None:
+                self._problem.apply(step.theta)
+                context.window_manager.progress_update(step.iteration)
+                terms = ", ".join(f"{k} {v:.3g}" for k, v in step.terms.items() if v)
+                context.area.header_text_set(
+                    f"Solving: evaluation {step.iteration}, energy {step.energy:.4g} ({terms}) · "
+                    "Esc: stop and keep · Right-click: cancel"
+                )
+            return {"RUNNING_MODAL"}
+        if self._thread.is_alive():
+            return {"PASS_THROUGH"}
+        if self._error is not None:
+            self._problem.apply(self._problem.theta0)
+            self.report({"ERROR"}, f"The solve failed: {self._error}")
+            return self._end(context, {"CANCELLED"})
+        self._finish(context, self._problem, self._result)
+        return self._end(context, {"FINISHED"})
+
+    def _end(self, context, status: set) -> set:
+        context.window_manager.event_timer_remove(self._timer)
+        context.window_manager.progress_end()
+        context.area.header_text_set(None)
+        context.area.tag_redraw()
+        return status
+
+
+class CONTACT_EDIT_OT_flex_to_contact(bpy.types.Operator):
+    """Curl the selected finger bones until they touch the object (a quick first grip)"""
+
+    bl_idname = "contact_edit.flex_to_contact"
+    bl_label = "Flex to Contact"
+    bl_options = {"REGISTER", "UNDO"}
+
+    direction: bpy.props.EnumProperty(
+        name="Curl",
+        items=[
+            ("POSITIVE", "Positive X", "Curl by increasing each bone's X rotation"),
+            ("NEGATIVE", "Negative X", "Curl by decreasing each bone's X rotation"),
+        ],
+        default="POSITIVE",
+    )
+    keyframe: bpy.props.BoolProperty(name="Keyframe", description="Key the pose on the current frame")
+
+    @classmethod
+    def poll(cls, context):
+        return poll_hand_and_object(cls, context)
+
+    def execute(self, context):
+        return guarded(self, lambda: self._flex(context))
+
+    def _flex(self, context):
+        sign = 1 if self.direction == "POSITIVE" else -1
+        posed, theta, touching = posing.flex(context.scene, sign)
+        bridge.apply_pose(posed, theta, context.scene.frame_current if self.keyframe else None)
+        reached = [name for name, hit in touching.items() if hit]
+        missed = [name for name, hit in touching.items() if not hit]
+        message = f"{len(reached)} of {len(touching)} chains touch '{context.scene.contact_edit.target.name}'"
+        if missed:
+            message += f"; curled fully without touching: {', '.join(missed)}"
+        self.report({"INFO"} if reached else {"WARNING"}, message)
+        return {"FINISHED"}
+
+
+class CONTACT_EDIT_OT_reset_weights(bpy.types.Operator):
+    """Set the scene's solver weights to the defaults in the add-on's preferences"""
+
+    bl_idname = "contact_edit.reset_weights"
+    bl_label = "Reset Weights"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        for name, value in preferences.solver_weights(context).items():
+            setattr(context.scene.contact_edit, name, value)
+        return {"FINISHED"}
+
+
+classes = (CONTACT_EDIT_OT_solve, CONTACT_EDIT_OT_flex_to_contact, CONTACT_EDIT_OT_reset_weights)

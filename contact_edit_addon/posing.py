@@ -1,0 +1,188 @@
+"""Contact IK for a Blender scene: the hand's paired patches, the object's, and the armature to pose.
+
+Shared by the solve and flex-to-contact operators and the batch commands, so that an animator's click
+and a script pose the same way. Geometry is gathered once into armature space (see
+:mod:`.bridge.armature`); solving is then pure numpy, which is why the operator can run it in a worker
+thread and redraw the viewport as the pose improves.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import bpy
+import numpy as np
+
+from geodesics import ContactError, SurfacePoints, TriMesh
+from solver import ContactIK, SolveResult, Weights, grasp
+from solver.hands import Hand
+
+from . import bridge, store
+
+#: Which DOFs a solve may change (the paper's staged solves: the root first, then everything).
+STAGES = (
+    ("ROOT", "Root only", "Move and turn the whole hand; no joint changes"),
+    ("ALL", "All bones", "Every joint of the hand's armature"),
+    ("SELECTED", "Selected bones", "Only the bones selected in Pose Mode"),
+)
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One contact IK solve set up from the scene.
+
+    ``pairs`` lists the (hand patch, object patch) names whose points were paired; ``free`` the DOFs
+    the stage lets change; ``world_scale`` converts armature-space lengths into scene units.
+    """
+
+    posed: bridge.PosedHand
+    ik: ContactIK
+    theta0: np.ndarray
+    free: np.ndarray
+    pairs: tuple[tuple[str, str], ...]
+    world_scale: float
+
+    def apply(self, theta, frame: int | None = None) -> None:
+        bridge.apply_pose(self.posed, theta, frame)
+
+
+def _objects(scene: bpy.types.Scene) -> tuple[bpy.types.Object, bpy.types.Object]:
+    settings = scene.contact_edit
+    if settings.hand is None or settings.target is None:
+        raise bridge.BridgeError("choose the hand and the object in the Contact tab first")
+    return settings.hand, settings.target
+
+
+def contact_pairs(hand_set, object_set) -> tuple[SurfacePoints, SurfacePoints, list[tuple[str, str]]]:
+    """The hand's points and the object's points they pair with, over all paired patches."""
+    pairs = [(h, o) for h, o in hand_set.pairs.items() if o in object_set]
+    if not pairs:
+        raise ContactError(
+            "no hand patch is paired with a patch of the object; transfer hand patches onto it first"
+        )
+    hand_points, object_points = [], []
+    for h, o in pairs:
+        a, b = hand_set[h].points, object_set[o].points
+        if len(a) != len(b):
+            raise ContactError(
+                f"the paired patches '{h}' ({len(a)} points) and '{o}' ({len(b)} points) do not match "
+                "point for point; transfer the hand patch again"
+            )
+        hand_points.append(a)
+        object_points.append(b)
+    return SurfacePoints.concatenate(hand_points), SurfacePoints.concatenate(object_points), pairs
+
+
+def object_in_armature(target: bpy.types.Object, posed: bridge.PosedHand) -> np.ndarray:
+    """(4, 4) the object's space to the armature's."""
+    armature = posed.armature_object()
+    return np.linalg.inv(np.array(armature.matrix_world)) @ np.array(target.matrix_world)
+
+
+def problem(scene: bpy.types.Scene, stage: str = "ALL") -> Problem:
+    """Set up the contact IK of the scene's hand and object from their stored, paired contacts.
+
+    Raises BridgeError, ContactError or SolverError with what to fix.
+    """
+    hand, target = _objects(scene)
+    settings = scene.contact_edit
+    hand_set = store.load(hand, settings.deformed)
+    object_set = store.load(target)
+    hand_points, object_points, pairs = contact_pairs(hand_set, object_set)
+    posed = bridge.posed_hand(hand, hand_set.mesh.faces)
+    M = object_in_armature(target, posed)
+    positions = object_points.positions(object_set.mesh) @ M[:3, :3].T + M[:3, 3]
+    normals = object_set.mesh.face_normals[object_points.faces] @ np.linalg.inv(M[:3, :3])
+    weights = Weights(d=settings.weight_distance, n=settings.weight_normal, p=settings.weight_prior)
+    ik = ContactIK(posed.skin, hand_points, positions, normals, weights)
+    armature = posed.armature_object()
+    theta0 = bridge.current_pose(armature, posed.rig.names)
+    return Problem(
+        posed=posed,
+        ik=ik,
+        theta0=theta0,
+        free=free_dofs(posed, armature, stage),
+        pairs=tuple(pairs),
+        world_scale=float(np.linalg.norm(np.array(armature.matrix_world)[:3, 0])),
+    )
+
+
+def free_dofs(posed: bridge.PosedHand, armature: bpy.types.Object, stage: str) -> np.ndarray:
+    """(d,) bool: the DOFs a stage lets the solve change."""
+    rig = posed.rig
+    if stage == "ROOT":
+        return rig.dof_bone == 0
+    if stage == "ALL":
+        return np.ones(rig.n_dofs, bool)
+    if stage == "SELECTED":
+        chosen = bridge.selected_bones(armature)
+        selected = [b for b, name in enumerate(rig.names) if name in chosen]
+        if not selected:
+            raise bridge.BridgeError(
+                f"no bone of the hand's armature '{armature.name}' is selected; select the bones to solve "
+                "in Pose Mode, or solve all bones"
+            )
+        return np.isin(rig.dof_bone, selected)
+    raise ValueError(f"unknown stage {stage!r}; use one of {', '.join(s[0] for s in STAGES)}")
+
+
+def summary(problem: Problem, result: SolveResult) -> str:
+    """One line for the animator: contacts, how close they got, how long it took."""
+    mean = float(result.distances.mean()) * problem.world_scale
+    worst = float(result.distances.max()) * problem.world_scale
+    return (
+        f"{len(result.distances)} contacts in {len(problem.pairs)} patch pairs: mean distance {mean:.4g}, "
+        f"largest {worst:.4g} (scene units); {result.iterations} evaluations in {result.seconds:.2f} s"
+        f" ({result.status})"
+    )
+
+
+def flex(scene: bpy.types.Scene, direction: int = 1) -> tuple[bridge.PosedHand, np.ndarray, dict[str, bool]]:
+    """Curl each chain of selected bones until it touches the object (flex-to-contact, 1988).
+
+    A chain is a selected bone and its selected descendants, each curling about its x axis towards
+    the limit on the ``direction`` side (+1: positive angles). The object must be closed.
+    Returns the posed hand, the pose, and for each chain (named by its first bone) whether it touches.
+    """
+    hand, target = _objects(scene)
+    settings = scene.contact_edit
+    hand_set = store.load(hand, settings.deformed)
+    posed = bridge.posed_hand(hand, hand_set.mesh.faces)
+    armature = posed.armature_object()
+    rig = posed.rig
+    chosen = bridge.selected_bones(armature)
+    selected = [b for b, name in enumerate(rig.names) if b > 0 and name in chosen]
+    if not selected:
+        raise bridge.BridgeError(
+            f"select the finger bones to curl in Pose Mode (bones of '{armature.name}' that deform "
+            f"'{hand.name}', not its root)"
+        )
+    chains = _chains(rig.parents, selected)
+    object_mesh = bridge.trimesh(target)
+    M = object_in_armature(target, posed)
+    inside = TriMesh(object_mesh.vertices @ M[:3, :3].T + M[:3, 3], object_mesh.faces)
+    skin = posed.skin
+    manipulator = Hand(
+        skin.mesh, rig, skin.weights, kind=f"'{hand.name}'", length=skin.size,
+        chains={rig.names[c[0]]: c for c in chains},
+    )  # fmt: skip
+    theta0 = bridge.current_pose(armature, rig.names)
+    result = grasp(manipulator, inside, theta0, direction=direction)
+    return posed, result.theta, result.touching
+
+
+def _chains(parents: np.ndarray, selected: list[int]) -> list[tuple[int, ...]]:
+    """Selected bones grouped into chains: a chain runs on through a bone's selected child when it has
+    exactly one; every other selected bone starts a chain (so selecting the palm and all fingers gives
+    the palm and each finger)."""
+    children = {b: [c for c in selected if int(parents[c]) == b] for b in selected}
+    continues = {kids[0] for kids in children.values() if len(kids) == 1}
+    chains = []
+    for b in selected:
+        if b in continues:
+            continue
+        chain = [b]
+        while len(children[chain[-1]]) == 1:
+            chain.append(children[chain[-1]][0])
+        chains.append(tuple(chain))
+    return chains
