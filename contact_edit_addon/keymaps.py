@@ -13,6 +13,7 @@ HOTKEYS = (
     ("contact_edit.bend", "B", {}),
     ("contact_edit.solve", "E", {}),
     ("contact_edit.flex_to_contact", "F", {}),
+    ("contact_edit.device_key", "K", {}),
 )
 
 _items: list = []

@@ -4,6 +4,9 @@ import bpy
 
 from . import (
     assets,
+    device_panel,
+    device_properties,
+    device_session,
     keymaps,
     operators,
     overlays,
@@ -15,9 +18,11 @@ from .preferences import CONTACT_EDIT_AP_preferences
 classes = (
     CONTACT_EDIT_AP_preferences,
     *properties.classes,
+    *device_properties.classes,
     *operators.classes,
     *assets.classes,
     *panels.classes,
+    *device_panel.classes,
 )
 
 
@@ -25,6 +30,8 @@ def register() -> None:
     for cls in classes:
         bpy.utils.register_class(cls)
     properties.register()
+    device_properties.register()
+    device_session.register()
     assets.register()
     overlays.register()
     keymaps.register()
@@ -34,6 +41,8 @@ def unregister() -> None:
     keymaps.unregister()
     overlays.unregister()
     assets.unregister()
+    device_session.unregister()
+    device_properties.unregister()
     properties.unregister()
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)

@@ -1,5 +1,6 @@
 """The one place where Blender data becomes the libraries' numpy types and back: meshes and surface
-points (:mod:`.mesh`), a hand's armature and vertex groups as a skinned rig, and poses (:mod:`.armature`).
+points (:mod:`.mesh`), a hand's armature and vertex groups as a skinned rig, and poses (:mod:`.armature`),
+an armature and the numbers a puppet device drives (:mod:`.device`).
 """
 
 from .armature import (

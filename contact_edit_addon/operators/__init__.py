@@ -1,7 +1,7 @@
 """The operators under ``bpy.ops.contact_edit``: each works interactively and with explicit properties
 in background mode, so scripts run the same tools an animator clicks."""
 
-from . import axis, edit, manage, paint, proxy, solve, transfer
+from . import axis, device, edit, manage, paint, proxy, solve, transfer
 
 classes = (
     *paint.classes,
@@ -11,4 +11,5 @@ classes = (
     *manage.classes,
     *proxy.classes,
     *solve.classes,
+    *device.classes,
 )

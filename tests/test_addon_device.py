@@ -1,0 +1,598 @@
+"""Driving an armature live from the puppet device in the real bpy 5.0.1 module: a simulated device on a
+pseudo-terminal, read by the SerialReader, binds to the procedural hand's bones, shape keys and
+properties; the poses Blender ends up with are checked against what the simulator sent."""
+
+import importlib.util
+
+import pytest
+
+from .blender import run_blender
+
+pytestmark = pytest.mark.skipif(importlib.util.find_spec("bpy") is None, reason="needs bpy (the dev extra)")
+
+SETUP = """
+import ctypes, os, tempfile, threading, time
+import numpy as np
+import contact_edit_addon
+contact_edit_addon.register()
+from contact_edit_addon import assets
+from contact_edit_addon import device_session
+from contact_edit_addon.bridge import device as device_bridge
+from contact_edit_addon.operators import device
+from solver import hands
+from tangible import (SPLITTERS, DeviceTree, Faults, Piece, PoseSpace, RandomMotion, Simulator, joint_angles,
+                      joint_rotation)
+from tangible import rotations as rot
+from tangible.protocol import DataMessage
+bpy.ops.wm.read_factory_settings(use_empty=True)
+scene = bpy.context.scene
+hand, armature = assets.hand_objects(hands.make_hand("human"), "Hand", scene.collection)
+for pose_bone in armature.pose.bones:  # the hand's anatomical limits would clamp the evaluated pose
+    for constraint in list(pose_bone.constraints):
+        pose_bone.constraints.remove(constraint)
+settings = scene.contact_edit_device
+settings.armature = armature
+NAMES = [b.name for b in armature.data.bones]  # parents first, as the session orders them
+
+# Joint 11 on the host, a T splitter 12 with the chain 13-15 in one slot and 14 in the other.
+DEVICE = DeviceTree([Piece(11, "joint"), Piece(12, "splitter", 11, splitter=SPLITTERS["T"]),
+                     Piece(13, "joint", 12, 0), Piece(15, "joint", 13), Piece(14, "joint", 12, 1)])
+BONES = {11: "hand", 13: "index_1", 15: "index_2", 14: "thumb_1"}
+for name, mode in {"hand": "QUATERNION", "index_2": "ZXY", "thumb_1": "AXIS_ANGLE"}.items():
+    armature.pose.bones[name].rotation_mode = mode  # index_1 stays XYZ
+
+def bind_bones(joints=BONES):
+    for joint, bone in joints.items():
+        bpy.ops.contact_edit.device_bind(joint=joint, target="BONE", bone=bone)
+
+def basis(name):
+    '''The bone's local rotation as Blender reads its channels (whatever the rotation mode).'''
+    return np.array(armature.pose.bones[name].matrix_basis.to_quaternion())
+
+def degrees(a, b):
+    return float(np.degrees(rot.angle(np.asarray(a, float), np.asarray(b, float))))
+
+def set_rotation(name, q):
+    device_bridge.write_rotations(armature, [name], np.asarray(q, float)[None])
+
+def channels():
+    return {b.name: (b.rotation_mode, tuple(b.rotation_quaternion), tuple(b.rotation_euler),
+                     tuple(b.rotation_axis_angle)) for b in armature.pose.bones}
+
+def reported(call):
+    '''Run call (an operator); return its result, or the error it raised, and what it reported.'''
+    libc = ctypes.CDLL(None)
+    with tempfile.TemporaryFile(mode="w+") as out:
+        sys.stdout.flush(); sys.stderr.flush(); libc.fflush(None)
+        saved = os.dup(1), os.dup(2)
+        os.dup2(out.fileno(), 1); os.dup2(out.fileno(), 2)
+        try:
+            value = call()
+        except RuntimeError as err:
+            value = str(err)
+        finally:
+            sys.stdout.flush(); sys.stderr.flush(); libc.fflush(None)
+            os.dup2(saved[0], 1); os.dup2(saved[1], 2)
+            os.close(saved[0]); os.close(saved[1])
+        out.seek(0)
+        return value, out.read()
+
+def sample_poses(n, seed):
+    '''Key n random poses of every bone in an action of its own (not left assigned), return them (n, b, 4)
+    as Blender reads them back.'''
+    rng = np.random.default_rng(seed)
+    samples = np.empty((n, len(NAMES), 4))
+    for k in range(n):
+        for b, name in enumerate(NAMES):
+            v = rng.normal(size=3); v *= rng.uniform(0.1, 0.8) / np.linalg.norm(v)
+            set_rotation(name, rot.from_rotvec(v) if b else rot.IDENTITY)
+            pose_bone = armature.pose.bones[name]
+            pose_bone.keyframe_insert(device_bridge.rotation_path(pose_bone.rotation_mode), frame=k + 1)
+            samples[k, b] = basis(name)
+    action = armature.animation_data.action
+    action.name = "Samples"
+    armature.animation_data.action = None
+    for name in NAMES:
+        set_rotation(name, rot.IDENTITY)
+    return action, samples
+
+def truth(simulator):
+    '''Joint rotations the simulator sent intact, by (joint, sequence number).'''
+    return {(s.message.creator, s.message.seq): joint_rotation(s.message.angles)
+            for s in simulator.history if s.intact and isinstance(s.message, DataMessage)}
+
+def session():
+    return device_session.sessions[armature.name]
+
+class FakeLayout:
+    '''Stands in for a UILayout (there is no window in background mode): checks that every property,
+    operator, menu and list the panel names exists, and records what it shows.'''
+    def __init__(self, shown):
+        self.shown, self.enabled, self.operator_context = shown, True, "INVOKE_DEFAULT"
+    def row(self, **_):
+        return FakeLayout(self.shown)
+    column = box = row
+    def prop(self, data, name, **_):
+        assert name in data.bl_rna.properties, name
+        self.shown.append(name)
+    def prop_search(self, data, name, search_data, search_name, **_):
+        assert name in data.bl_rna.properties and search_name in search_data.bl_rna.properties, name
+        self.shown.append(name)
+    def label(self, text="", **_):
+        self.shown.append(text)
+    def operator(self, idname, **_):
+        category, name = idname.split(".")
+        getattr(getattr(bpy.ops, category), name).get_rna_type()
+        self.shown.append(idname)
+        return type("Properties", (), {})()
+    def menu(self, name, **_):
+        assert hasattr(bpy.types, name), name
+    def template_list(self, list_type, _id, data, name, active_data, active_name, **_):
+        assert hasattr(bpy.types, list_type) and name in data.bl_rna.properties
+        assert active_name in active_data.bl_rna.properties
+        for i, item in enumerate(getattr(data, name)):
+            bpy.types.CONTACT_EDIT_UL_device_bindings.draw_item(None, bpy.context, self, data, item, 0, data,
+                                                                 active_name, i)
+
+def panel_shows():
+    from contact_edit_addon import device_panel
+    shown = []
+    panel = device_panel.VIEW3D_PT_contact_edit_device
+    fake = type("Panel", (), {"layout": FakeLayout(shown), **{name: staticmethod(getattr(panel, name))
+            for name in dir(panel) if name.startswith("draw_")}})()
+    panel.draw(fake, bpy.context)
+    device_panel.CONTACT_EDIT_MT_device_ports.draw(type("Menu", (), {"layout": FakeLayout(shown)})(),
+                                                  bpy.context)
+    return shown
+"""
+
+
+def test_driven_bones_equal_simulated_joints_through_corrupted_frames(tmp_path):
+    """Simulator → pty → SerialReader → armature with 5% of frames damaged: every driven bone, read back
+    from Blender in its own rotation mode, equals the joint rotation the simulator sent in the frame the
+    reader accepted; the other bones follow the sample poses by pose interpolation."""
+    out = run_blender(
+        """
+        action, samples = sample_poses(6, seed=3)
+        settings.sample_action = action
+        bind_bones()
+        motion, faults = RandomMotion(4, seed=11), Faults.corrupt(0.05)
+        simulator = Simulator(DEVICE, motion=motion, faults=faults, seed=5).start()
+        settings.port = simulator.path
+        bpy.ops.contact_edit.device_connect()
+        bound = [NAMES.index(BONES[j]) for j in BONES]
+        followers = [b for b in range(1, len(NAMES)) if b not in bound]
+        oracle = PoseSpace(samples[:, bound], samples[:, followers])
+        seen, interpolation_error, ticks = [], 0.0, []
+        for _ in range(70):
+            time.sleep(0.025)
+            started = time.perf_counter()
+            bpy.ops.contact_edit.device_update()
+            ticks.append(time.perf_counter() - started)
+            state = session().state
+            seen += [(j, state.components[j].data_seq, basis(BONES[j])) for j in BONES]
+            keys = np.array([basis(NAMES[b]) for b in bound])
+            expected = oracle(keys)
+            interpolation_error = max(interpolation_error, max(
+                degrees(basis(NAMES[b]), q) for b, q in zip(followers, expected)))
+        status = settings.status
+        simulator.stop()
+        sent = truth(simulator)
+        errors = [degrees(q, sent[j, seq]) for j, seq, q in seen]
+        link = session().state.link
+        bpy.ops.contact_edit.device_stop()
+        simulator.close()
+        result(dict(max_error=max(errors), compared=len(errors), distinct=len({(j, s) for j, s, _ in seen}),
+                    interpolation_error=interpolation_error, corrupted=simulator.stats.corrupted,
+                    intact=simulator.stats.intact, damaged=link.corrupt + link.oversize, status=status,
+                    followers=len(followers), tick_ms=1000 * float(np.median(ticks))))
+        """,
+        tmp_path,
+        setup=SETUP,
+    )
+    print(
+        f"\nmax bone error {out['max_error']:.4f}° over {out['compared']} readings "
+        f"({out['distinct']} distinct frames); {out['corrupted']} of "
+        f"{out['corrupted'] + out['intact']} frames corrupted, {out['damaged']} rejected by the reader; "
+        f"interpolated bones within "
+        f"{out['interpolation_error']:.4f}° of the pose space; median update {out['tick_ms']:.2f} ms"
+    )
+    assert out["max_error"] < 0.5  # the device's accuracy; quantization alone is 0.003°
+    assert out["distinct"] > 100
+    assert out["corrupted"] > 10 and out["damaged"] > 0
+    assert out["interpolation_error"] < 0.05
+    assert out["followers"] == 12
+    assert out["status"].startswith("Live on") and "12 following by interpolation" in out["status"]
+
+
+def test_silence_freezes_the_pose_and_says_so_and_stop_restores_it(tmp_path):
+    out = run_blender(
+        """
+        rng = np.random.default_rng(2)
+        for name in NAMES[1:]:
+            set_rotation(name, rot.from_rotvec(rng.normal(scale=0.3, size=3)))
+        before = channels()
+        bind_bones()
+        link = os.path.join(tempfile.mkdtemp(), "puppet")  # a stable name, like /dev/serial/by-id
+        simulator = Simulator(DEVICE, motion=RandomMotion(4, seed=1, speed=2.0), seed=3, link=link).start()
+        settings.port = link
+        bpy.ops.contact_edit.device_connect()
+        reader = session().reader
+        def still(names, seconds=0.15):
+            first = {n: basis(n) for n in names}
+            time.sleep(seconds)
+            bpy.ops.contact_edit.device_update()
+            return max(degrees(first[n], basis(n)) for n in names)
+        bpy.ops.contact_edit.device_update()
+        moving_at_start = still(BONES.values())
+
+        # The live operator's timer step, run by hand (background mode has no window for the timer).
+        Live = device.CONTACT_EDIT_OT_device_connect
+        class LiveOperator:
+            _end = Live._end
+            def __init__(self):
+                self._armature, self._session, self._reported, self._timer = armature.name, session(), "", 1
+                self.reports = []
+            def report(self, level, message):
+                self.reports.append((next(iter(level)), message))
+        live, removed = LiveOperator(), []
+        manager = type("WindowManager", (), {"event_timer_remove": removed.append})
+        window = type("Context", (), {"scene": scene, "screen": None, "window_manager": manager})
+        def timer_step():
+            return Live.modal(live, window, type("Event", (), {"type": "TIMER"}))
+
+        # The splitter's subtree loses power: after the 2 s rule its bones hold, the rest moves on.
+        simulator.set_power(12, False)
+        detached = reader.wait_for(lambda s: not s.components[13].attached, 4.0) is not None
+        _, subtree_report = reported(bpy.ops.contact_edit.device_update)
+        live_steps = [timer_step(), timer_step()]
+        subtree = ["index_1", "index_2", "thumb_1"]
+        subtree_drift, live_motion = still(subtree), still(["hand"])
+        simulator.set_power(12, True)
+        reader.wait_for(lambda s: all(s.components[j].attached for j in (13, 14, 15)), 2.0)
+        _, back_report = reported(bpy.ops.contact_edit.device_update)
+        live_steps.append(timer_step())
+        moving_again = still(subtree)
+
+        # The cable is pulled: the port fails at once; plugged back in, the reader reopens it.
+        simulator.unplug()
+        reader.wait_for(lambda s: not s.connected, 2.0)
+        _, unplugged_report = reported(bpy.ops.contact_edit.device_update)
+        unplugged_drift = still(BONES.values())
+        simulator.replug()
+        reader.wait_for(lambda s: s.connected and all(s.components[j].attached for j in BONES), 4.0)
+        bpy.ops.contact_edit.device_update()
+        replugged_motion = still(BONES.values())
+
+        # The device stops altogether.
+        simulator.stop()
+        reader.wait_for(lambda s: not any(s.components[j].attached for j in BONES), 4.0)
+        _, silent_report = reported(bpy.ops.contact_edit.device_update)
+        silent_drift = still(BONES.values())
+        stop_result, stop_report = reported(bpy.ops.contact_edit.device_stop)
+        after = channels()
+        live_steps.append(timer_step())
+        update_after_stop, _ = reported(bpy.ops.contact_edit.device_update)
+        simulator.close()
+        result(dict(moving_at_start=moving_at_start, detached=detached, subtree_report=subtree_report,
+                    subtree_drift=subtree_drift, live_motion=live_motion, back_report=back_report,
+                    moving_again=moving_again, unplugged_report=unplugged_report,
+                    unplugged_drift=unplugged_drift, replugged_motion=replugged_motion,
+                    silent_report=silent_report, silent_drift=silent_drift,
+                    stop_result=list(stop_result), stop_report=stop_report, restored=after == before,
+                    touched=[n for n in before if before[n] != after[n]],
+                    sessions=len(device_session.sessions),
+                    update_after_stop=update_after_stop, status=settings.status,
+                    live_steps=[sorted(step) for step in live_steps], live_reports=live.reports,
+                    timer_removed=removed,
+                    threads=[t.name for t in threading.enumerate() if t.name.startswith("tangible")]))
+        """,
+        tmp_path,
+        setup=SETUP,
+    )
+    assert out["moving_at_start"] > 1.0
+    assert out["detached"]
+    report = out["subtree_report"]
+    assert "Warning" in report and "13, 14, 15" in report and "frozen" in report and "'index_1'" in report
+    assert out["subtree_drift"] < 1e-6 and out["live_motion"] > 0.1
+    assert "Live on" in out["back_report"] and out["moving_again"] > 0.1
+    # The live timer reports the freeze once, and the recovery; once stopped it ends and removes its timer.
+    assert out["live_steps"] == [["PASS_THROUGH"]] * 3 + [["CANCELLED"]] and out["timer_removed"] == [1]
+    assert [level for level, _ in out["live_reports"]] == ["WARNING", "INFO"]
+    assert "fell silent" in out["live_reports"][0][1]
+    assert "Warning" in out["unplugged_report"] and "Lost the port" in out["unplugged_report"]
+    assert out["unplugged_drift"] < 1e-6 and out["replugged_motion"] > 0.1
+    assert "Warning" in out["silent_report"] and "is silent: the pose is frozen" in out["silent_report"]
+    assert out["silent_drift"] < 1e-6
+    assert out["stop_result"] == ["FINISHED"] and "pose from before connecting is back" in out["stop_report"]
+    assert out["restored"], out["touched"]
+    assert out["sessions"] == 0 and out["threads"] == []
+    assert "No device is driving 'Hand rig'" in out["update_after_stop"]
+    assert out["status"].startswith("Stopped")
+
+
+def test_calibration_shape_keys_properties_recording_and_sample_poses(tmp_path):
+    out = run_blender(
+        """
+        from bpy_extras import anim_utils
+        from mathutils import Euler
+        action, samples = sample_poses(5, seed=8)
+        rng = np.random.default_rng(4)
+        for name in BONES.values():
+            set_rotation(name, rot.from_rotvec(rng.normal(scale=0.4, size=3)))
+        start = {n: basis(n) for n in BONES.values()}
+        bpy.ops.mesh.primitive_plane_add()
+        face = bpy.context.active_object
+        face.name = "Face"
+        face.shape_key_add(name="Basis"); face.shape_key_add(name="Smile").value = 0.2
+        face["open"] = -1.0
+        bpy.context.view_layer.objects.active = armature
+        bind_bones({11: "hand", 13: "index_1", 14: "thumb_1"})
+        bpy.ops.contact_edit.device_bind(joint=15, target="SHAPE_KEY", object_name="Face", shape_key="Smile",
+                                         channel="bend_a", source_min=0.0, source_max=np.pi / 2)
+        bpy.ops.contact_edit.device_bind(joint=14, target="PROPERTY", object_name="Face",
+                                         data_path='["open"]', channel="twist", source_min=0.0,
+                                         source_max=np.pi, target_max=2.0)
+        angles = np.zeros((4, 4))  # the joints' angles, in DEVICE.joints order (11, 13, 15, 14), set by hand
+        simulator = Simulator(DEVICE, motion=lambda t: angles.copy(), seed=6).start()
+        settings.port = simulator.path
+        bpy.ops.contact_edit.device_connect()
+        reader = session().reader
+        order = DEVICE.joints
+        def hold(target):
+            '''Hold the device at angles (4, 4) and update once the reader has them.'''
+            angles[:] = target
+            ok = reader.wait_for(lambda s: all(np.abs(s.components[j].angles - target[i]).max() < 1e-3
+                                               for i, j in enumerate(order)), 2.0)
+            assert ok is not None
+            bpy.ops.contact_edit.device_update()
+            return {j: joint_rotation(target[i]) for i, j in enumerate(order)}
+        def random_angles():
+            a = rng.uniform(-0.6, 0.6, (4, 4)); a[:, 2:] = rng.uniform(-3, 3, (4, 2))
+            return a
+        def worst(expected):
+            return max(degrees(basis(BONES[j]), q) for j, q in expected.items() if j != 15)
+
+        settings.active_binding = 3  # the shape key
+        shown_live = panel_shows()
+        settings.active_binding = 0
+        shown_live += panel_shows()
+
+        # Calibrate to the rest pose with the device held at A: the bones are at rest, and after moving to
+        # B each bone turns by the joint's turn from A to B.
+        A = hold(random_angles())
+        bpy.ops.contact_edit.device_calibrate(pose="REST")
+        at_rest = worst({j: rot.IDENTITY for j in A})
+        B = hold(random_angles())
+        rest_turn = worst({j: rot.multiply(rot.conjugate(A[j]), B[j]) for j in A})
+        # Calibrate to the pose from before connecting with the device at B, then move to C.
+        bpy.ops.contact_edit.device_calibrate(pose="START")
+        at_start = worst({j: start[BONES[j]] for j in A})
+        C = hold(random_angles())
+        start_turn = worst({j: rot.multiply(start[BONES[j]], rot.multiply(rot.conjugate(B[j]), C[j]))
+                            for j in A})
+
+        # Shape key and property: bend_a 0..90° -> Smile 0..1, clamped; twist 0..180° -> open 0..2.
+        smile = face.data.shape_keys.key_blocks["Smile"]
+        numbers = []
+        for bend_a, twist in ((np.pi / 4, np.pi / 2), (np.pi / 8, np.pi / 4), (-0.3, 0.2)):
+            target = np.zeros((4, 4)); target[2, 0] = bend_a; target[3, 2:] = twist / 2
+            hold(target)
+            numbers.append((smile.value, face["open"]))
+
+        # Record every frame, then on demand.
+        settings.record = "EVERY_FRAME"
+        recorded = {}
+        for frame in (1, 2, 3, 4):
+            scene.frame_set(frame)
+            hold(random_angles())
+            recorded[frame] = (basis("hand"), basis("index_1"), smile.value)
+        def curves(idblock):
+            data = idblock.animation_data
+            bag = anim_utils.action_get_channelbag_for_slot(data.action, data.action_slot)
+            return {(c.data_path, c.array_index): c for c in bag.fcurves}
+        settings.record = "ON_DEMAND"
+        scene.frame_set(10); hold(random_angles())
+        keyed_before_asking = any(k.co[0] == 10 for c in curves(armature).values() for k in c.keyframe_points)
+        bpy.ops.contact_edit.device_key()
+        settings.record = "OFF"
+        scene.frame_set(20); hold(random_angles())
+        bones = curves(armature)
+        def key_frames(path):
+            return sorted({k.co[0] for (p, _), c in bones.items() if p == path for k in c.keyframe_points})
+        hand_path = 'pose.bones["hand"].rotation_quaternion'
+        index_path = 'pose.bones["index_1"].rotation_euler'
+        replay = 0.0
+        for frame, (hand_q, index_q, smile_value) in recorded.items():
+            q = [bones[hand_path, i].evaluate(frame) for i in range(4)]
+            e = [bones[index_path, i].evaluate(frame) for i in range(3)]
+            replay = max(replay, degrees(q / np.linalg.norm(q), hand_q),
+                         degrees(np.array(Euler(e, "XYZ").to_quaternion()), index_q))
+        shape_curves = curves(face.data.shape_keys).values()
+        shape_frames = sorted(k.co[0] for c in shape_curves for k in c.keyframe_points)
+        property_frames = sorted(k.co[0] for c in curves(face).values() for k in c.keyframe_points)
+
+        # Sample poses: with the bound bones exactly at a sample's rotations, every other bone is there too.
+        for b in settings.bindings:
+            b.rest, b.pose = (1, 0, 0, 0), (1, 0, 0, 0)
+        settings.sample_action = action
+        bound = [NAMES.index(n) for n in ("hand", "index_1", "thumb_1")]
+        reproduced = 0.0
+        for k in (0, 3):
+            target = np.zeros((4, 4))
+            target[[0, 1, 3]] = joint_angles(samples[k, bound])
+            hold(target)
+            reproduced = max(reproduced, max(degrees(basis(NAMES[b]), samples[k, b])
+                                             for b in range(1, len(NAMES))))
+        bpy.ops.contact_edit.device_stop()
+        simulator.close()
+        result(dict(at_rest=at_rest, rest_turn=rest_turn, at_start=at_start, start_turn=start_turn,
+                    numbers=numbers, hand_frames=key_frames(hand_path), index_frames=key_frames(index_path),
+                    keyed_before_asking=keyed_before_asking, replay=replay, shape_frames=shape_frames,
+                    property_frames=property_frames, reproduced=reproduced,
+                    smile_after_stop=smile.value, open_after_stop=face["open"], shown_live=shown_live,
+                    shown_stopped=panel_shows()))
+        """,
+        tmp_path,
+        setup=SETUP,
+    )
+    calibration = ("at_rest", "rest_turn", "at_start", "start_turn")
+    print(
+        "\ncalibration errors "
+        + ", ".join(f"{name} {out[name]:.4f}°" for name in calibration)
+        + f"; keys replay within {out['replay']:.5f}°"
+        + f"; sample poses reproduced within {out['reproduced']:.4f}°"
+    )
+    for name in calibration:
+        assert out[name] < 0.5, name
+    assert out["numbers"] == [
+        pytest.approx([0.5, 1.0], abs=1e-3),
+        pytest.approx([0.25, 0.5], abs=1e-3),
+        pytest.approx([0.0, 0.4 / 3.14159265], abs=1e-3),  # a negative bend clamps to the range's end
+    ]
+    assert out["hand_frames"] == out["index_frames"] == [1, 2, 3, 4, 10]
+    assert not out["keyed_before_asking"]
+    assert out["shape_frames"] == [1, 2, 3, 4, 10] and out["property_frames"] == [1, 2, 3, 4, 10]
+    assert out["replay"] < 0.01
+    assert out["reproduced"] < 0.5
+    # The panel: live joints to bind, calibration, the scalar binding's settings; Connect once stopped.
+    live = out["shown_live"]
+    assert (
+        "Joint 11" in live and "contact_edit.device_calibrate" in live and "contact_edit.device_stop" in live
+    )
+    assert "shape_key" in live and "channel" in live and "bone" in live and "Face: Smile" in live
+    assert "contact_edit.device_connect" in out["shown_stopped"]
+    assert out["smile_after_stop"] == pytest.approx(0.2) and out["open_after_stop"] == -1.0  # as before
+
+
+def test_bad_input_is_refused_clearly_and_changes_nothing(tmp_path):
+    out = run_blender(
+        """
+        rng = np.random.default_rng(5)
+        for name in NAMES[1:]:
+            set_rotation(name, rot.from_rotvec(rng.normal(scale=0.3, size=3)))
+        threads = threading.active_count()
+        errors = {}
+        def attempt(key, call):
+            errors[key] = reported(call)[0]
+
+        settings.armature = None
+        bpy.context.view_layer.objects.active = hand
+        attempt("no armature", bpy.ops.contact_edit.device_connect)
+        attempt("bind without armature", lambda: bpy.ops.contact_edit.device_bind(joint=1, bone="hand"))
+        settings.armature = armature
+        attempt("unknown bone", lambda: bpy.ops.contact_edit.device_bind(joint=1, bone="tail"))
+        attempt("no shape key", lambda: bpy.ops.contact_edit.device_bind(
+            joint=2, target="SHAPE_KEY", object_name="Hand", shape_key="Smile"))
+        attempt("not a number", lambda: bpy.ops.contact_edit.device_bind(
+            joint=2, target="PROPERTY", object_name="Hand", data_path="name"))
+        bind_bones()
+        before, bindings = channels(), [(b.joint, b.bone) for b in settings.bindings]
+        attempt("no port", bpy.ops.contact_edit.device_connect)
+        settings.port = "/dev/ttyNOSUCHPORT"
+        attempt("unknown port", bpy.ops.contact_edit.device_connect)
+        settings.port = "carrier-pigeon://coop"
+        attempt("bad url", bpy.ops.contact_edit.device_connect)
+
+        master, slave = os.openpty()
+        stop = threading.Event()
+        def spew():
+            noise = np.random.default_rng(1)
+            while not stop.is_set():
+                os.write(master, noise.integers(0, 256, 256, dtype=np.uint8).tobytes())
+                stop.wait(0.005)
+        spewer = threading.Thread(target=spew); spewer.start()
+        settings.port = os.ttyname(slave)
+        started = time.perf_counter()
+        attempt("garbage", bpy.ops.contact_edit.device_connect)
+        garbage_seconds = time.perf_counter() - started
+        stop.set(); spewer.join(); os.close(master); os.close(slave)
+
+        simulator = Simulator(DEVICE, motion=RandomMotion(4, seed=2), seed=1).start()
+        settings.port = simulator.path
+        extra = settings.bindings.add(); extra.joint, extra.bone = 99, "pinky_1"
+        attempt("missing joint", bpy.ops.contact_edit.device_connect)
+        extra.bone = "index_1"
+        attempt("bone bound twice", bpy.ops.contact_edit.device_connect)
+        settings.bindings.remove(len(settings.bindings) - 1)
+        simulator.close()
+        attempt("update without device", bpy.ops.contact_edit.device_update)
+        attempt("calibrate without device", bpy.ops.contact_edit.device_calibrate)
+        attempt("stop without device", bpy.ops.contact_edit.device_stop)
+        attempt("propose without samples", bpy.ops.contact_edit.device_propose)
+        result(dict(errors=errors, unchanged=channels() == before, status=settings.status,
+                    bindings=[(b.joint, b.bone) for b in settings.bindings] == bindings,
+                    sessions=len(device_session.sessions), threads=threading.active_count() - threads,
+                    garbage_seconds=garbage_seconds))
+        """,
+        tmp_path,
+        setup=SETUP,
+    )
+    e = out["errors"]
+    assert (
+        "Choose the armature to drive" in e["no armature"]
+        and "Choose the armature" in e["bind without armature"]
+    )
+    assert "'Hand rig' has no bone called 'tail'" in e["unknown bone"]
+    assert "'Hand' has no shape key called 'Smile'" in e["no shape key"]
+    assert "is not a number" in e["not a number"]
+    assert "Choose the device's port first" in e["no port"]
+    assert (
+        "Cannot open the port '/dev/ttyNOSUCHPORT'" in e["unknown port"] and "simulator" in e["unknown port"]
+    )
+    assert "carrier-pigeon://coop" in e["bad url"]
+    assert "sends data, but no puppet device messages" in e["garbage"] and "right port" in e["garbage"]
+    assert "Joint 99 of the bindings is not attached" in e["missing joint"]
+    assert "attached joints: 11, 13, 15, 14" in e["missing joint"]
+    assert "'index_1' is bound to joints 13 and 99" in e["bone bound twice"]
+    for key in ("update without device", "calibrate without device", "stop without device"):
+        assert "No device is driving 'Hand rig': connect one first" in e[key], key
+    assert "Choose the sample poses" in e["propose without samples"]
+    assert out["unchanged"] and out["bindings"] and out["status"] == ""
+    assert out["sessions"] == 0 and out["threads"] == 0
+    assert out["garbage_seconds"] < 4.0  # the connect timeout is 1.5 s
+
+
+def test_proposed_device_binds_and_drives_through_the_builtin_simulator(tmp_path):
+    out = run_blender(
+        """
+        action, samples = sample_poses(8, seed=12)
+        settings.sample_action = action
+        settings.kit_joints, settings.kit_t = 4, 1
+        proposed, report = reported(bpy.ops.contact_edit.device_propose)
+        planned = {b.joint: (b.bone, tuple(b.rest)) for b in settings.bindings}
+        plan = settings.plan
+        instructions = bpy.data.texts["Device assembly"].as_string()
+        settings.simulator, settings.simulator_corruption, settings.simulator_seed = True, 5.0, 9
+        bpy.ops.contact_edit.device_connect()
+        live = {b.joint: b.bone for b in settings.bindings}
+        simulator = session().simulator
+        seen = []
+        for _ in range(40):
+            time.sleep(0.025)
+            bpy.ops.contact_edit.device_update()
+            state = session().state
+            seen += [(j, state.components[j].data_seq, basis(bone)) for j, bone in live.items()]
+        followers = len(session().written_bones) - len(live)
+        simulator.stop()
+        sent = truth(simulator)
+        rest = {j: np.array(r) for j, (_, r) in planned.items()}
+        errors = [degrees(q, rot.multiply(rot.conjugate(rest[j]), sent[j, seq])) for j, seq, q in seen]
+        bpy.ops.contact_edit.device_stop()
+        result(dict(proposed=list(proposed), report=report, planned={j: b for j, (b, _) in planned.items()},
+                    live=live, plan_left=settings.plan, had_plan=bool(plan), instructions=instructions,
+                    max_error=max(errors), compared=len(errors), corrupted=simulator.stats.corrupted,
+                    followers=followers,
+                    threads=[t.name for t in threading.enumerate() if t.name.startswith("tangible")]))
+        """,
+        tmp_path,
+        setup=SETUP,
+    )
+    assert out["proposed"] == ["FINISHED"] and "Proposed 4 joints and" in out["report"]
+    assert len(out["planned"]) == 4 and out["had_plan"] and out["plan_left"] == ""
+    assert {int(k): v for k, v in out["live"].items()} == {int(k): v for k, v in out["planned"].items()}
+    assert out["instructions"].splitlines()[1] == "host" and "drives bone" in out["instructions"]
+    print(f"\nproposed device driven through the simulator: max bone error {out['max_error']:.4f}°")
+    assert out["max_error"] < 0.5 and out["compared"] > 100 and out["corrupted"] > 0
+    assert out["followers"] == 16 - 4  # every non-root bone the device does not drive follows
+    assert out["threads"] == []  # the session closed its simulator and reader
