@@ -6,6 +6,8 @@ Subcommands:
 * ``bench contacts`` — time the contact model (parameterize, edits, transfer, atlas).
 * ``bench solver`` — time contact IK (analytic against finite-difference gradients, NLopt's optimizers
   side by side) and the flex-to-contact grasp.
+* ``bench tangible`` — the puppet device's serial link under corruption, pose interpolation per frame,
+  and the rig reduction's error against kit size (the paper's Fig. 7).
 * ``ablation`` — the contact IK ablation of Contact Edit's Fig. 11 as a table (each term of Eq. 2 removed).
 * ``build-extension`` — build the Blender extension zips, with every run-time dependency as wheels.
 * ``demo`` — the embedded default job: a procedural hand grasps a mug; saves, renders, summarizes.
@@ -36,6 +38,11 @@ def _bench(args: argparse.Namespace) -> int:
 
         print(f"  finite-difference solves: median of min(repeat, {solver_benchmark.FD_RUNS}), no warm-up")
         rows = solver_benchmark.run(repeat=args.repeat, progress=_progress)
+    elif args.target == "tangible":
+        from tangible import benchmark as tangible_benchmark
+
+        rows = tangible_benchmark.run(repeat=args.repeat, progress=_progress)
+        rows += tangible_benchmark.run_reduction_curve(progress=_progress)
     else:
         rows = benchmark.run_contacts(repeat=args.repeat, progress=_progress)
     print(benchmark.format_table(rows))
@@ -133,7 +140,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="contact-edit", description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True)
     bench = commands.add_parser("bench", help="run a benchmark and print its table")
-    bench.add_argument("target", choices=["geodesics", "contacts", "solver"], help="what to benchmark")
+    bench.add_argument(
+        "target", choices=["geodesics", "contacts", "solver", "tangible"], help="what to benchmark"
+    )
     bench.add_argument("--repeat", type=int, default=7, help="runs per timing (the median is shown)")
     bench.add_argument("--rays", type=int, default=2000, help="rays / targets per query")
     bench.set_defaults(run=_bench)

@@ -20,3 +20,19 @@ def test_bad_arguments_are_refused(capsys):
     with pytest.raises(SystemExit):
         main(["bench", "geodesics", "--repeat", "0"])
     assert "--repeat must be at least 1" in capsys.readouterr().err
+
+
+def test_bench_tangible_prints_link_interpolation_and_reduction_rows(capsys, monkeypatch):
+    from functools import partial
+
+    from tangible import benchmark
+
+    monkeypatch.setattr(benchmark, "run", partial(benchmark.run, seconds=1.0))
+    curve = partial(benchmark.run_reduction_curve, n_bones=20, kit_sizes=(0, 3), n_poses=4)
+    monkeypatch.setattr(benchmark, "run_reduction_curve", curve)
+    assert main(["bench", "tangible", "--repeat", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "link latency, 25 joints at 50 Hz" in out and "valid frames lost:" in out
+    assert "pose interpolation per update, 100 bones" in out
+    assert "Fig. 7: 20 bones, 4 poses,  0 joints" in out and "pose error 100.0%" in out
+    assert "Fig. 7: 20 bones, 4 poses,  3 joints" in out
