@@ -27,6 +27,7 @@ def pose_scene(
     frame: int | None = None,
     stage: str = "ALL",
     overwrite: bool = False,
+    remap: bool = False,
     progress: Callable[[int, int, float], None] | None = None,
     max_evaluations: int = 2000,
 ) -> str:
@@ -40,6 +41,8 @@ def pose_scene(
         Object names (default: the hand and object chosen in the scene's Contact tab).
     contacts : path-like, optional
         A pairing file (``store.save_pairing``) to use instead of the contacts stored in the scene.
+    remap : bool
+        Project a pairing file made for other meshes onto the scene's by position (else it is refused).
     frame : int, optional
         Pose at this frame and key the pose there. Without it the current frame is posed, and keyed
         only if the armature is already animated (otherwise its animation would override the pose).
@@ -65,7 +68,7 @@ def pose_scene(
     if contacts is not None:
         if settings.hand is None or settings.target is None:
             raise BridgeError(f"{scene_path}: name the hand and the object to apply {contacts} to")
-        store.load_pairing(contacts, settings.hand, settings.target)
+        store.load_pairing(contacts, settings.hand, settings.target, remap)
     if frame is not None:
         scene.frame_set(frame)
     problem = posing.problem(scene, stage)

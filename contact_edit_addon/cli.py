@@ -125,7 +125,7 @@ def _pose(args: argparse.Namespace) -> int:
     try:
         summary = batch.pose_scene(
             args.scene, args.output, hand=args.hand, target=args.object, contacts=args.contacts,
-            frame=args.frame, stage=args.stage, overwrite=args.overwrite, progress=bar,
+            frame=args.frame, stage=args.stage, overwrite=args.overwrite, remap=args.remap, progress=bar,
         )  # fmt: skip
     except (BridgeError, ContactError, SolverError) as err:
         print(f"\ncontact-edit pose: {err}", file=sys.stderr)
@@ -166,6 +166,9 @@ def build_parser() -> argparse.ArgumentParser:
     pose.add_argument("--hand", help="the hand mesh object (default: the scene's Contact tab choice)")
     pose.add_argument("--object", help="the object mesh (default: the scene's Contact tab choice)")
     pose.add_argument("--contacts", help="a pairing file to use instead of the scene's stored contacts")
+    pose.add_argument(
+        "--remap", action="store_true", help="project a pairing file made for other meshes by position"
+    )
     pose.add_argument("--frame", type=int, help="pose at this frame and key the pose there")
     pose.add_argument("--stage", choices=["ROOT", "ALL", "SELECTED"], default="ALL", help="which bones move")
     pose.add_argument("--overwrite", action="store_true", help="allow the output to be the input scene")

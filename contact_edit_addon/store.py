@@ -89,9 +89,10 @@ def save_pairing(path, hand: bpy.types.Object, target: bpy.types.Object) -> None
     write_atomically(path, json.dumps(data, indent=1))
 
 
-def load_pairing(path, hand: bpy.types.Object, target: bpy.types.Object) -> None:
-    """Give the hand and the object the contact sets of a pairing file (projected onto their meshes
-    if the file was made for others). Either both objects change or neither does."""
+def load_pairing(path, hand: bpy.types.Object, target: bpy.types.Object, remap: bool = False) -> None:
+    """Give the hand and the object the contact sets of a pairing file. A file made for other meshes is
+    refused with what it was made for, unless ``remap`` projects it onto these by position. Either both
+    objects change or neither does."""
     path = Path(path)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
@@ -101,6 +102,7 @@ def load_pairing(path, hand: bpy.types.Object, target: bpy.types.Object) -> None
         raise ContactError(f'{path}: not a pairing file (expected "format": "{PAIRING_FORMAT}", version 1)')
     sets = {}
     for key, obj in (("hand", hand), ("object", target)):
-        sets[key] = _from_dict(data.get(key), bridge.trimesh(obj), f"{path} ({key})")
+        source = f"{path} ({key} '{obj.name}')"
+        sets[key] = ContactSet.from_dict(data.get(key), bridge.trimesh(obj), remap=remap, source=source)
     save(hand, sets["hand"])
     save(target, sets["object"])

@@ -3,6 +3,7 @@
 
 import hashlib
 import importlib.util
+import json
 import os
 import re
 import struct
@@ -118,7 +119,20 @@ def test_pose_command_poses_a_copy_and_never_writes_its_input(demo, tmp_path):
         "pose", str(scene), "--hand", "Nope", "-o", "bad.blend", cwd=tmp_path, user_dir=user
     )
     assert missing.returncode == 1 and "no object 'Nope' (mesh objects: Hand, Mug)" in missing.stderr
+    foreign = tmp_path / "foreign.json"
+    pairing = json.loads((out / "contacts.json").read_text())
+    pairing["hand"]["mesh"]["hash"] = "0" * 64  # as if made for another hand
+    foreign.write_text(json.dumps(pairing))
+    refused = contact_edit(
+        "pose", str(scene), "--contacts", str(foreign), "-o", "bad.blend", cwd=tmp_path, user_dir=user
+    )
+    assert refused.returncode == 1 and "(hand 'Hand'): made for another mesh" in refused.stderr
     assert not (tmp_path / "bad.blend").exists() and digest(scene) == before
+    remapped = contact_edit(
+        "pose", str(scene), "--contacts", str(foreign), "--remap", "-o", "remapped.blend",
+        cwd=tmp_path, user_dir=user,
+    )  # fmt: skip
+    assert remapped.returncode == 0, remapped.stderr
 
     again = contact_edit(
         "pose", str(scene), "--contacts", str(out / "contacts.json"), "--frame", "40", "-o", "again.blend",
