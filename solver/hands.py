@@ -302,11 +302,17 @@ class _Builder:
         self.cage.extrude([face], corners, self.weights(weights))
 
     def finish(self, kind: str, scale: float, chains) -> Hand:
-        """Subdivide the cage, rig the bones; the length runs from y = 0 (wrist or base) forward."""
+        """Subdivide the cage, rig the bones; the length runs from y = 0 (wrist or base) forward.
+
+        The quads are split into triangles at scale 1, then scaled: nearly equal diagonals could otherwise
+        break differently after scaling, and a hand at another size would get other triangles (another
+        topology, refusing the contact and annotation files made for it at life size)."""
         points, quads, attributes = catmull_clark(
-            self.cage.points * scale, self.cage.faces, self.cage.attributes, SUBDIVISIONS
+            self.cage.points, self.cage.faces, self.cage.attributes, SUBDIVISIONS
         )
-        mesh = TriMesh(points, quads_to_triangles(points, quads))
+        triangles = quads_to_triangles(points, quads)
+        points = points * scale
+        mesh = TriMesh(points, triangles)
         attributes[attributes < 1e-12] = 0.0
         weights = sparse.csr_matrix(attributes / attributes.sum(1, keepdims=True))
         nd = 6 + 3 * (len(self.names) - 1)

@@ -82,6 +82,12 @@ def test_hands_are_deterministic_and_scale():
     assert np.allclose(big.mesh.vertices, 10 * a.mesh.vertices)
     assert np.allclose(big.rig.matrix_local[:, :3, 3], 10 * a.rig.matrix_local[:, :3, 3])
     assert big.length == pytest.approx(10 * a.length)
+    # The same triangles at every size (near-tied quad diagonals once split differently after scaling,
+    # so a child-size hand refused the files made for the life-size one).
+    for kind in ("human", "witch", "alien"):
+        life = hands.make_hand(kind).mesh
+        for scale in (0.75, 1.25, 0.01):
+            assert hands.make_hand(kind, scale).mesh.topology_hash == life.topology_hash, (kind, scale)
     with pytest.raises(SolverError, match="unknown hand kind 'robot'"):
         hands.make_hand("robot")
     with pytest.raises(SolverError, match="scale"):
