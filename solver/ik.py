@@ -13,6 +13,12 @@ the retargeting paper (Lakshmipathy et al. 2025)::
 subject to the rig's bounds ``lower <= θ <= upper``. Sums run over points, as in the papers (denser
 contact patches weigh more; Table 2 of Contact Edit). Angles are in radians.
 
+**Squared or plain distances.** Contact Edit's Eq. 2 squares the contact distances; the retargeting
+paper's Eq. 4-5 sum plain L2 distances (Γ_MD, Γ_CD). ``norm="l2"`` gives the latter for the contact and
+marker terms, smoothed at zero as ``sqrt(|d|²/u² + δ²) - δ`` (δ = :data:`L2_SMOOTHING`) so the gradient
+stays continuous. Plain distances are robust: a few contacts that cannot be met (a hand of another size
+touching the same object points) no longer pull the many that can away from zero.
+
 **Normalization.** ``u`` is the manipulator's length unit: its rest bounding-box diagonal divided by
 :data:`UNITS_PER_SIZE`. The papers tuned λd = 1, λn = 1, λp = 10 in Maya centimetres on hands about
 25 cm across their bounding box, so ``u`` is that centimetre carried to any scale: a hand and its targets
@@ -61,6 +67,11 @@ FTOL_REL = 1e-9
 #: How the objective's gradient is computed.
 GRADIENTS = ("analytic", "finite-difference", "central-difference")
 MAX_EVALUATIONS = 2000
+#: How the contact and marker terms weigh a distance d: d²/u² (Contact Edit Eq. 2) or d/u (Eq. 4-5 of
+#: the retargeting paper).
+NORMS = ("squared", "l2")
+#: Smoothing δ of the L2 norm at zero, in units of u (0.5 mm on a life-size hand).
+L2_SMOOTHING = 0.05
 
 
 @dataclass(frozen=True)
@@ -177,6 +188,8 @@ class ContactIK:
         ``"analytic"``, or for comparison with the papers (which used finite differences)
         ``"finite-difference"`` (forward: one energy evaluation per free DOF) or ``"central-difference"``
         (two per free DOF).
+    norm : str
+        ``"squared"`` (Contact Edit) or ``"l2"`` (the retargeting paper): see :data:`NORMS`.
 
     Raises
     ------
@@ -200,6 +213,7 @@ class ContactIK:
         unit: float | None = None,
         algorithm: str = "slsqp",
         gradient: str = "analytic",
+        norm: str = "squared",
     ):
         if not isinstance(hand, SkinnedMesh):
             raise SolverError(
@@ -241,7 +255,9 @@ class ContactIK:
             raise SolverError(f"unknown algorithm {algorithm!r}; use one of {', '.join(ALGORITHMS)}")
         if gradient not in GRADIENTS:
             raise SolverError(f"gradient must be one of {', '.join(GRADIENTS)}, got {gradient!r}")
-        self.algorithm, self.gradient = algorithm, gradient
+        if norm not in NORMS:
+            raise SolverError(f"norm must be one of {', '.join(NORMS)}, got {norm!r}")
+        self.algorithm, self.gradient, self.norm = algorithm, gradient, norm
         self.unit = hand.size / UNITS_PER_SIZE if unit is None else float(unit)
         if not (np.isfinite(self.unit) and self.unit > 0):
             raise SolverError(f"unit must be a positive length, got {unit!r}")
@@ -275,24 +291,23 @@ class ContactIK:
         kin = rig._kinematics(t, with_gradient)
         skin = self._skin
         V = skin.vertices.positions(kin)
-        u2 = self.unit**2
         terms: dict[str, float] = {}
         adjoint = np.zeros_like(V)  # dE/dV of the posed vertices
         grad = np.zeros(rig.n_dofs)
         contacts = skin.sets[0]
         p, n, aux = contacts.geometry(V)
-        diff = p - self.target_points
-        terms["distance"] = w.d * float(np.sum(diff**2)) / u2
+        value, d_diff = self._distance_term(p - self.target_points)
+        terms["distance"] = w.d * value
         terms["normal"] = w.n * float(np.sum(1.0 + np.einsum("ki,ki->k", n, self.target_normals)))
         if with_gradient:
-            adjoint += contacts.adjoint(n, aux, 2 * w.d / u2 * diff, w.n * self.target_normals)
+            adjoint += contacts.adjoint(n, aux, w.d * d_diff, w.n * self.target_normals)
         if self.markers is not None:
             markers = skin.sets[1]
             q, qn, qaux = markers.geometry(V)
-            mdiff = q - self._marker_targets
-            terms["marker"] = w.m * float(np.sum(mdiff**2)) / u2
+            value, d_diff = self._distance_term(q - self._marker_targets)
+            terms["marker"] = w.m * value
             if with_gradient:
-                adjoint += markers.adjoint(qn, qaux, 2 * w.m / u2 * mdiff, None)
+                adjoint += markers.adjoint(qn, qaux, w.m * d_diff, None)
         if self.obstacle is not None:
             rows = skin.extra_rows
             sd, sd_grad = self.obstacle.evaluate(V[rows])
@@ -312,6 +327,14 @@ class ContactIK:
             return energy, terms
         grad += skin.vertices.vjp(kin, adjoint)
         return energy, terms, grad
+
+    def _distance_term(self, diff: np.ndarray) -> tuple[float, np.ndarray]:
+        """The unweighted sum over rows of ``diff`` (k, 3) in the chosen norm, and its gradient (k, 3)."""
+        u2 = self.unit**2
+        if self.norm == "squared":
+            return float(np.sum(diff**2)) / u2, 2.0 / u2 * diff
+        r = np.sqrt(np.einsum("ki,ki->k", diff, diff) / u2 + L2_SMOOTHING**2)
+        return float(np.sum(r - L2_SMOOTHING)), diff / (u2 * r[:, None])
 
     def distances(self, theta) -> np.ndarray:
         """(k,) distance of each posed hand point from its target."""
@@ -357,68 +380,93 @@ class ContactIK:
             raise SolverError(f"free needs {rig.n_dofs} flags (one per DOF), got {mask.size}")
         mask &= ~rig.locked
         index = np.flatnonzero(mask)
-        scale = self._scale[index]
-        start_energy, start_terms = self.energy(theta, with_gradient=False)
-        best = {"energy": start_energy, "theta": theta.copy(), "terms": start_terms}
-        count = [0]
-        cancelled = [False]
-
-        def full(x):
-            t = theta.copy()
-            t[index] = x * scale
-            return t
-
-        def value(x):
-            return self.energy(full(x), with_gradient=False)[0]
-
-        def objective(x, grad):
-            t = full(x)
-            if grad.size:
-                if self.gradient == "analytic":
-                    e, terms, g = self.energy(t)
-                    grad[:] = g[index] * scale
-                else:
-                    e, terms = self.energy(t, with_gradient=False)
-                    grad[:] = _finite_differences(value, x, e, central=self.gradient == "central-difference")
-            else:
-                e, terms = self.energy(t, with_gradient=False)
-            count[0] += 1
-            if not np.isfinite(e):
-                raise nlopt.ForcedStop
-            if e < best["energy"]:
-                best.update(energy=e, theta=t, terms=terms)
-            if progress is not None and progress(Progress(count[0], e, dict(terms), t.copy())):
-                cancelled[0] = True
-                raise nlopt.ForcedStop
-            return e
-
-        status = "converged"
-        if index.size:
-            opt = nlopt.opt(ALGORITHMS[self.algorithm], index.size)
-            opt.set_lower_bounds(rig.lower[index] / scale)
-            opt.set_upper_bounds(rig.upper[index] / scale)
-            opt.set_min_objective(objective)
-            opt.set_ftol_rel(ftol_rel)
-            opt.set_maxeval(int(max_evaluations))
-            try:
-                opt.optimize(theta[index] / scale)
-                if opt.last_optimize_result() == nlopt.MAXEVAL_REACHED:
-                    status = "max evaluations"
-            except nlopt.ForcedStop:
-                status = "cancelled" if cancelled[0] else "stopped"
-            except (nlopt.RoundoffLimited, RuntimeError):
-                status = "stopped"
-        final = best["theta"]
+        start_energy = self.energy(theta, with_gradient=False)[0]
+        final, energy, terms, count, status = minimize(
+            self.energy, theta, index, self._scale[index], rig, self.algorithm, max_evaluations, ftol_rel,
+            gradient=self.gradient, progress=progress,
+        )  # fmt: skip
         return SolveResult(
             theta=final,
-            energy=float(best["energy"]),
-            terms=dict(best["terms"]),
-            iterations=count[0],
+            energy=energy,
+            terms=terms,
+            iterations=count,
             seconds=time.perf_counter() - start,
             distances=self.distances(final),
             status=status,
             start_energy=float(start_energy),
         )
+
+
+def minimize(
+    energy: Callable,
+    theta: np.ndarray,
+    index: np.ndarray,
+    scale: np.ndarray,
+    rig,
+    algorithm: str,
+    max_evaluations: int = MAX_EVALUATIONS,
+    ftol_rel: float = FTOL_REL,
+    *,
+    gradient: str = "analytic",
+    progress: Callable[[Progress], bool | None] | None = None,
+) -> tuple[np.ndarray, float, dict, int, str]:
+    """Minimize ``energy(θ, with_gradient) -> (E, terms[, dE/dθ])`` over the DOFs ``index`` of θ with NLopt.
+
+    The free DOFs are optimized as ``θ[index] / scale`` (so locations and angles are of one size) within
+    the rig's bounds; the others keep θ's values. Returns the best pose seen (never NaN), its energy and
+    terms, the number of evaluations and the outcome (see :class:`SolveResult`).
+    """
+    start_energy, start_terms = energy(theta, with_gradient=False)
+    best = {"energy": start_energy, "theta": theta.copy(), "terms": start_terms}
+    count = [0]
+    cancelled = [False]
+
+    def full(x):
+        t = theta.copy()
+        t[index] = x * scale
+        return t
+
+    def value(x):
+        return energy(full(x), with_gradient=False)[0]
+
+    def objective(x, grad):
+        t = full(x)
+        if grad.size:
+            if gradient == "analytic":
+                e, terms, g = energy(t)
+                grad[:] = g[index] * scale
+            else:
+                e, terms = energy(t, with_gradient=False)
+                grad[:] = _finite_differences(value, x, e, central=gradient == "central-difference")
+        else:
+            e, terms = energy(t, with_gradient=False)
+        count[0] += 1
+        if not np.isfinite(e):
+            raise nlopt.ForcedStop
+        if e < best["energy"]:
+            best.update(energy=e, theta=t, terms=terms)
+        if progress is not None and progress(Progress(count[0], e, dict(terms), t.copy())):
+            cancelled[0] = True
+            raise nlopt.ForcedStop
+        return e
+
+    status = "converged"
+    if index.size:
+        opt = nlopt.opt(ALGORITHMS[algorithm], index.size)
+        opt.set_lower_bounds(rig.lower[index] / scale)
+        opt.set_upper_bounds(rig.upper[index] / scale)
+        opt.set_min_objective(objective)
+        opt.set_ftol_rel(ftol_rel)
+        opt.set_maxeval(int(max_evaluations))
+        try:
+            opt.optimize(theta[index] / scale)
+            if opt.last_optimize_result() == nlopt.MAXEVAL_REACHED:
+                status = "max evaluations"
+        except nlopt.ForcedStop:
+            status = "cancelled" if cancelled[0] else "stopped"
+        except (nlopt.RoundoffLimited, RuntimeError):
+            status = "stopped"
+    return best["theta"], float(best["energy"]), dict(best["terms"]), count[0], status
 
 
 def _finite_differences(

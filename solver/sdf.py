@@ -41,6 +41,39 @@ def _points(x) -> np.ndarray:
     return X
 
 
+def face_samples(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Points that stand for the faces of a mesh in a nearest-neighbour search.
+
+    Every face (corners (m, 3, 3)) is represented by the centroids of its L x L sub-triangles (L = 1 for
+    all but unusually large faces, beyond the :data:`LARGE_FACE_QUANTILE` of circumradii): each point of
+    a face is within ``spacing`` of one of them, so a face is at least (distance to its nearest
+    representative) - spacing away from any query. Returns the samples (s, 3), the face each stands
+    for (s,) and ``spacing``.
+    """
+    T = np.asarray(corners, dtype=np.float64)
+    centroids = T.mean(1)
+    radius = np.linalg.norm(T - centroids[:, None], axis=2).max(1)
+    levels = np.maximum(1, np.ceil(radius / np.quantile(radius, LARGE_FACE_QUANTILE))).astype(np.int64)
+    samples, owners = [], []
+    for level in np.unique(levels):
+        faces = np.flatnonzero(levels == level)
+        i, j = np.meshgrid(np.arange(level), np.arange(level), indexing="ij")
+        up, down = i + j <= level - 1, i + j <= level - 2
+        uv = (
+            np.concatenate(
+                [
+                    np.stack([i[up] + 1 / 3, j[up] + 1 / 3], 1),
+                    np.stack([i[down] + 2 / 3, j[down] + 2 / 3], 1),
+                ]
+            )
+            / level
+        )
+        bary = np.stack([1 - uv.sum(1), uv[:, 0], uv[:, 1]], 1)
+        samples.append(np.einsum("sc,fcd->fsd", bary, T[faces]).reshape(-1, 3))
+        owners.append(np.repeat(faces, len(bary)))
+    return np.concatenate(samples), np.concatenate(owners), float((radius / levels).max())
+
+
 class MeshSDF:
     """Exact signed distance to a closed triangle mesh.
 
@@ -63,32 +96,8 @@ class MeshSDF:
         self.mesh = mesh
         T = mesh.vertices[mesh.faces]
         self._corners = T
-        # Every face is represented by the centroids of its L x L sub-triangles (L = 1 for all but
-        # unusually large faces): each point of the face is within `spacing` of one of them, so a face
-        # is at least (distance to its nearest representative) - spacing away from any query.
-        centroids = T.mean(1)
-        radius = np.linalg.norm(T - centroids[:, None], axis=2).max(1)
-        levels = np.maximum(1, np.ceil(radius / np.quantile(radius, LARGE_FACE_QUANTILE))).astype(np.int64)
-        samples, owners = [], []
-        for level in np.unique(levels):
-            faces = np.flatnonzero(levels == level)
-            i, j = np.meshgrid(np.arange(level), np.arange(level), indexing="ij")
-            up, down = i + j <= level - 1, i + j <= level - 2
-            uv = (
-                np.concatenate(
-                    [
-                        np.stack([i[up] + 1 / 3, j[up] + 1 / 3], 1),
-                        np.stack([i[down] + 2 / 3, j[down] + 2 / 3], 1),
-                    ]
-                )
-                / level
-            )
-            bary = np.stack([1 - uv.sum(1), uv[:, 0], uv[:, 1]], 1)
-            samples.append(np.einsum("sc,fcd->fsd", bary, T[faces]).reshape(-1, 3))
-            owners.append(np.repeat(faces, len(bary)))
-        self._owner = np.concatenate(owners)
-        self._spacing = float((radius / levels).max())
-        self._tree = cKDTree(np.concatenate(samples))
+        samples, self._owner, self._spacing = face_samples(T)
+        self._tree = cKDTree(samples)
         self._box = (mesh.vertices.min(0), mesh.vertices.max(0))
         n = mesh.face_normals
         self._edge_normals = (n[np.arange(3 * mesh.n_faces) // 3] + n[mesh.twin // 3]).reshape(-1, 3, 3)
