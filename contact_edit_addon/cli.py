@@ -12,6 +12,11 @@ Subcommands:
 * ``build-extension`` — build the Blender extension zips, with every run-time dependency as wheels.
 * ``demo`` — the embedded default job: a procedural hand grasps a mug; saves, renders, summarizes.
 * ``pose`` — pose the hand of a saved scene from its contacts and save it to a new file.
+* ``synthesize`` — write a synthetic hand-object manipulation with ground truth (the motion format).
+* ``retarget`` — retarget a motion onto another hand: per-frame solves in parallel processes (or on a
+  Dask cluster), refinement, spline fit, metrics and plots; an interrupted run resumes.
+* ``bench retarget`` — the whole retarget of a long, densely touching motion, stage by stage, and its
+  speed-up from one to two worker processes.
 
 ``demo`` and ``pose`` need Blender's Python module (``pip install "contact-edit[blender]"``).
 """
@@ -26,11 +31,32 @@ def _progress(what: str) -> None:
     print(f"  {what} ...", file=sys.stderr, flush=True)
 
 
+class _StageBars:
+    """A progress bar per stage on stderr: ``bars(stage, done, total)``."""
+
+    def __init__(self):
+        self.stage = None
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if stage != self.stage:
+            if self.stage is not None:
+                print(file=sys.stderr)
+            self.stage = stage
+        filled = int(30 * min(done, total) / max(total, 1))
+        print(f"\r  {stage:<9} [{'#' * filled}{'.' * (30 - filled)}] {done}/{total}",
+              end="", file=sys.stderr, flush=True)  # fmt: skip
+
+    def close(self) -> None:
+        if self.stage is not None:
+            print(file=sys.stderr)
+
+
 def _bench(args: argparse.Namespace) -> int:
     from geodesics import benchmark
 
     runs = f"median of {args.repeat} runs after {benchmark.WARMUP} untimed ones"
-    print(f"contact-edit bench {args.target}: {runs}", flush=True)
+    if args.target != "retarget":  # one long run, timed stage by stage
+        print(f"contact-edit bench {args.target}: {runs}", flush=True)
     if args.target == "geodesics":
         rows = benchmark.run(repeat=args.repeat, rays=args.rays, progress=_progress)
     elif args.target == "solver":
@@ -38,6 +64,15 @@ def _bench(args: argparse.Namespace) -> int:
 
         print(f"  finite-difference solves: median of min(repeat, {solver_benchmark.FD_RUNS}), no warm-up")
         rows = solver_benchmark.run(repeat=args.repeat, progress=_progress)
+    elif args.target == "retarget":
+        from solver.retarget import benchmark as retarget_benchmark
+
+        print(
+            retarget_benchmark.format_report(
+                retarget_benchmark.run(frames=args.frames, progress=_StageBars())
+            )
+        )
+        return 0
     elif args.target == "tangible":
         from tangible import benchmark as tangible_benchmark
 
@@ -136,15 +171,103 @@ def _pose(args: argparse.Namespace) -> int:
     return 0
 
 
+def _synthesize(args: argparse.Namespace) -> int:
+    from solver import SolverError
+    from solver.retarget import synthetic
+
+    bars = _StageBars()
+    try:
+        motion = synthetic.generate(
+            args.object, frames=args.frames, fps=args.fps, seed=args.seed, scale=args.scale,
+            density=args.density, progress=bars,
+        )  # fmt: skip
+        bars.close()
+        motion.save(args.output)
+    except (SolverError, OSError) as err:
+        bars.close()
+        print(f"contact-edit synthesize: {err}", file=sys.stderr)
+        return 1
+    counts = motion.hand_contacts.count()
+    print(f"contact-edit synthesize: {motion}; contacts per touching frame: median {int(_median(counts))}")
+    print(f"  saved {args.output}")
+    return 0
+
+
+def _median(counts) -> float:
+    import numpy as np
+
+    touching = counts[counts > 0]
+    return float(np.median(touching)) if touching.size else 0.0
+
+
+def _retarget(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from solver import SolverError
+    from solver.retarget import annotations, pipeline, synthetic
+    from solver.retarget.frames import HandSpec, RetargetWeights
+    from solver.retarget.motion import Motion, MotionError
+
+    out = Path(args.output)
+    bars = _StageBars()
+    try:
+        motion = Motion.load(args.motion)
+        target = HandSpec(args.target, args.scale)
+        if args.annotation:
+            annotation = annotations.HandPairAnnotation.load(args.annotation)
+        elif motion.source_kind is None:
+            raise SolverError(
+                "the motion's source hand is not a procedural one; give its annotation with --annotation"
+            )
+        else:
+            source = synthetic.source_hand(motion.source_kind, motion.source_scale)
+            annotation = annotations.default_annotation(source, target.build())
+        options = pipeline.RetargetOptions(
+            weights=RetargetWeights(c=0.0) if args.no_contacts else RetargetWeights(),
+            root_pass=not args.no_root_pass, refine=not args.no_refine, n_control=args.control,
+        )  # fmt: skip
+        result = pipeline.retarget(
+            motion, target, annotation, options, folder=out / "frames", workers=args.workers,
+            scheduler=args.scheduler, progress=bars,
+        )  # fmt: skip
+        bars.close()
+        paths = pipeline.save_result(result, out, annotation, plot=not args.no_plot)
+    except (SolverError, MotionError, OSError) as err:
+        bars.close()
+        print(f"contact-edit retarget: {err}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        bars.close()
+        print(f"contact-edit retarget: interrupted; run the same command again to resume ({out / 'frames'})",
+              file=sys.stderr)  # fmt: skip
+        return 130
+    summary = result.summary()
+    length = target.build().length
+    print(f"contact-edit retarget: {motion.n_frames} frames onto {args.target} (scale {args.scale})")
+    for key in ("median_contact_distance_mm", "median_marker_distance_mm"):
+        value = summary[key]
+        shown = "n/a" if value is None else f"{value:.2f} mm ({100 * value / 1e3 / length:.2f}% of the hand)"
+        print(f"  {key.replace('_mm', '').replace('_', ' ')}: {shown}")
+    total = sum(result.seconds.values())
+    shares = ", ".join(f"{k} {v:.1f} s ({100 * v / total:.0f}%)" for k, v in result.seconds.items())
+    print(f"  time {total:.1f} s: {shares}")
+    for name, path in paths.items():
+        print(f"  {name:<10} {path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="contact-edit", description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True)
     bench = commands.add_parser("bench", help="run a benchmark and print its table")
     bench.add_argument(
-        "target", choices=["geodesics", "contacts", "solver", "tangible"], help="what to benchmark"
+        "target",
+        choices=["geodesics", "contacts", "solver", "tangible", "retarget"],
+        help="what to benchmark",
     )
     bench.add_argument("--repeat", type=int, default=7, help="runs per timing (the median is shown)")
     bench.add_argument("--rays", type=int, default=2000, help="rays / targets per query")
+    bench.add_argument("--frames", type=int, default=1000, help="retarget: frames of the motion")
     bench.set_defaults(run=_bench)
     ablation = commands.add_parser("ablation", help="print the contact IK ablation table (Fig. 11)")
     ablation.set_defaults(run=_ablation)
@@ -173,6 +296,35 @@ def build_parser() -> argparse.ArgumentParser:
     pose.add_argument("--stage", choices=["ROOT", "ALL", "SELECTED"], default="ALL", help="which bones move")
     pose.add_argument("--overwrite", action="store_true", help="allow the output to be the input scene")
     pose.set_defaults(run=_pose)
+    synth = commands.add_parser("synthesize", help="write a synthetic hand-object manipulation (.npz motion)")
+    synth.add_argument("output", help="the motion file to write (.npz)")
+    synth.add_argument("--object", default="mug", choices=["mug", "cylinder", "box", "sphere"])
+    synth.add_argument("--frames", type=int, default=600, help="frame count (default 600)")
+    synth.add_argument("--fps", type=float, default=120.0, help="frame rate (default 120)")
+    synth.add_argument("--seed", type=int, default=0, help="draws the motion's variations")
+    synth.add_argument("--scale", type=float, default=1.0, help="scale of the whole scene")
+    synth.add_argument(
+        "--density", type=float, default=10.0, help="hand contact samples per cm² (default 10)"
+    )
+    synth.set_defaults(run=_synthesize)
+    ret = commands.add_parser("retarget", help="retarget a motion onto another hand")
+    ret.add_argument("motion", help="the source motion (.npz, see 'synthesize')")
+    ret.add_argument("--target", required=True, help="the target hand: human, witch, alien, tentacle")
+    ret.add_argument(
+        "--scale", type=float, default=1.0, help="the target hand's scale (child 0.75, large 1.25)"
+    )
+    ret.add_argument("--output", "-o", required=True, help="output folder (resumes if it holds this run)")
+    ret.add_argument(
+        "--annotation", help="the hand pair's annotation (.json; default: made for procedural hands)"
+    )
+    ret.add_argument("--workers", type=int, help="worker processes (default: one per CPU)")
+    ret.add_argument("--scheduler", help="address of a Dask scheduler to send the frames to")
+    ret.add_argument("--control", type=int, help="spline control points per DOF (default: 10 per second)")
+    ret.add_argument("--no-contacts", action="store_true", help="ablation: markers only (λc = 0)")
+    ret.add_argument("--no-root-pass", action="store_true", help="ablation: no root pre-solve")
+    ret.add_argument("--no-refine", action="store_true", help="skip the refinement")
+    ret.add_argument("--no-plot", action="store_true", help="do not write metrics.png")
+    ret.set_defaults(run=_retarget)
     return parser
 
 

@@ -1,3 +1,42 @@
 """Retargeting contact-rich hand-object motions between different hands (Kinematic Motion Retargeting,
 Lakshmipathy et al. 2025): motions, dense contact pairing, bulk contact transfer, per-frame contact IK,
-refinement, B-spline fitting, metrics and the §4.6 baselines."""
+refinement, B-spline fitting, metrics and the §4.6 baselines.
+
+```python
+from solver.hands import make_hand
+from solver.retarget import Motion, HandSpec, default_annotation, retarget, synthetic
+motion = synthetic.generate("mug")                       # or Motion.load("capture.npz")
+annotation = default_annotation(make_hand("human"), make_hand("witch"))
+result = retarget(motion, HandSpec("witch"), annotation)  # frames in parallel processes
+result.theta, result.contact_distance, result.motion.save("witch.npz")
+```
+"""
+
+from . import synthetic
+from .annotations import AnnotationError, HandPairAnnotation, default_annotation, transfer_motion
+from .frames import FrameResult, FrameTask, HandSpec, RetargetWeights, estimate, solve_frame
+from .motion import Contacts, Motion, MotionError
+from .pairing import pair_motion
+from .pipeline import Retarget, RetargetOptions, retarget, save_result
+
+__all__ = [
+    "AnnotationError",
+    "Contacts",
+    "FrameResult",
+    "FrameTask",
+    "HandPairAnnotation",
+    "HandSpec",
+    "Motion",
+    "MotionError",
+    "Retarget",
+    "RetargetOptions",
+    "RetargetWeights",
+    "default_annotation",
+    "estimate",
+    "pair_motion",
+    "retarget",
+    "save_result",
+    "solve_frame",
+    "synthetic",
+    "transfer_motion",
+]

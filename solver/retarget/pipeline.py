@@ -1,0 +1,450 @@
+"""The whole retarget of a motion onto another hand (Kinematic Motion Retargeting §3, Fig. 2).
+
+Stages, each with its own progress (``progress(stage, done, total)``, stages in :data:`STAGES`):
+
+1. ``transfer`` — the motion's hand contacts move to the target hand through the annotated contact
+   atlas, all frames in one call (§3.3.2, :func:`.annotations.transfer_motion`).
+2. ``root`` and ``full`` — every frame solved on its own (§3.4.2): the root alone, then the full pose
+   seeded by it (:mod:`.frames`).
+3. ``refine`` — acceleration violations replaced by interpolation and re-solved (§3.4.3,
+   :func:`.refine.refine_trajectory`).
+4. ``spline`` — a cubic B-spline per DOF with a fixed number of control points (§3.4.4,
+   :func:`.spline.fit_bspline`), evaluated at every frame: the result.
+5. ``metrics`` — per-frame mean marker and contact distances and intersection volumes (§4.2).
+
+Every per-frame solve (root, full and the refinement's re-solves) is a task run by
+:func:`.executor.run_frames`: in worker processes on this machine, or on a Dask cluster given its
+scheduler's address, with each frame's result written to a folder as it finishes. Running the same
+retarget into the same folder again resumes: solved frames are read back, not solved again (the
+refinement's re-solves are deterministic, so they are found again too).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import SolverError
+from ..skinning import SkinnedMesh
+from .annotations import HandPairAnnotation, TransferredContacts, transfer_motion
+from .executor import FrameStore, run_frames, write_bytes_atomically
+from .frames import (
+    FrameTask,
+    HandSpec,
+    RetargetWeights,
+    build_tasks,
+    full_tasks,
+    marker_targets,
+    object_contact_geometry,
+    solve_frame,
+)
+from .metrics import IntersectionMeter, Intersections, mean_distances
+from .motion import Motion
+from .refine import E_ACC, MAX_ITERATIONS, RefineLog, refine_trajectory
+from .spline import SplineFit, fit_bspline
+
+#: The stages a retarget reports progress for, in order.
+STAGES = ("transfer", "root", "full", "refine", "spline", "metrics")
+#: Default spline control points per second of motion (the paper's Table 4: 60-120 points for 6-13 s
+#: motions at 120 fps, 9-12 per second).
+CONTROL_PER_SECOND = 10.0
+
+Progress = Callable[[str, int, int], None]
+
+
+@dataclass(frozen=True)
+class RetargetOptions:
+    """How a retarget runs. The defaults are the paper's method.
+
+    Attributes
+    ----------
+    weights : RetargetWeights
+        λ of Eq. 3 (``weights.c = 0`` is the no-contact ablation of §4.7).
+    root_pass : bool
+        Solve each frame's root first (§3.4.2); False is the §4.7 ablation: the full pose is solved from
+        the rest pose directly.
+    refine : bool
+        Run the refinement (§3.4.3).
+    e_acc : float
+        Acceleration threshold of the refinement, rad/s² (translations in hand lengths/s²).
+    max_refine_iterations : int
+    n_control : int or None
+        Spline control points per DOF (default: :data:`CONTROL_PER_SECOND` per second, at least 4).
+    use_table : bool
+        Keep the hand out of the motion's table (Eq. 6).
+    intersections : bool
+        Measure intersection volumes (a few ms per frame).
+    """
+
+    weights: RetargetWeights = field(default_factory=RetargetWeights)
+    root_pass: bool = True
+    refine: bool = True
+    e_acc: float = E_ACC
+    max_refine_iterations: int = MAX_ITERATIONS
+    n_control: int | None = None
+    use_table: bool = True
+    intersections: bool = True
+
+
+@dataclass(frozen=True, eq=False)
+class Retarget:
+    """A retargeted motion and everything measured on the way.
+
+    Attributes
+    ----------
+    motion : Motion
+        The target hand's motion: its vertices posed by the final DOF curves, the same object poses and
+        table, the transferred contacts (paired row for row with the object's), ``source_theta`` = the
+        final DOF curves. It can be retargeted again (e.g. back to the source hand, §4.5).
+    theta : (F, d)
+        The final DOF curves (the spline evaluated at every frame).
+    estimate, refined : (F, d)
+        The per-frame estimate (§3.4.2) and the refined samples (§3.4.3).
+    valid : (F, d) bool
+        Samples the refinement kept (the spline ignores the others).
+    spline : SplineFit
+    refine_log : RefineLog or None
+    marker_distance, contact_distance : (F,)
+        Per-frame mean distances of the final motion in metres (NaN: no markers or contacts that frame).
+    estimate_contact_distance : (F,)
+        The same for the per-frame estimate.
+    intersections : Intersections or None
+    transferred : TransferredContacts
+    seconds : dict
+        Wall-clock seconds of each stage.
+    iterations : dict
+        Objective evaluations of the root, full and refine solves.
+    """
+
+    motion: Motion
+    theta: np.ndarray
+    estimate: np.ndarray
+    refined: np.ndarray
+    valid: np.ndarray
+    spline: SplineFit
+    refine_log: RefineLog | None
+    marker_distance: np.ndarray
+    contact_distance: np.ndarray
+    estimate_contact_distance: np.ndarray
+    intersections: Intersections | None
+    transferred: TransferredContacts
+    seconds: dict
+    iterations: dict
+
+    def summary(self) -> dict:
+        """Figures of the result (JSON-serializable): distances in millimetres, seconds per stage."""
+        contact = np.isfinite(self.contact_distance)
+
+        def mm(a):
+            return float(np.nanmedian(a) * 1e3) if np.isfinite(a).any() else None
+
+        out = {
+            "frames": len(self.theta),
+            "contact_frames": int(contact.sum()),
+            "median_contact_distance_mm": mm(self.contact_distance),
+            "median_marker_distance_mm": mm(self.marker_distance),
+            "median_estimate_contact_distance_mm": mm(self.estimate_contact_distance),
+            "spline_control_points": len(self.spline.control),
+            "masked_samples": int((~self.valid).sum()),
+            "seconds": {k: round(v, 3) for k, v in self.seconds.items()},
+            "iterations": dict(self.iterations),
+        }
+        if self.intersections is not None:
+            for name in ("hand_object", "self_intersection", "table"):
+                out[f"max_{name}_percent"] = float(np.max(getattr(self.intersections, name)))
+        return out
+
+
+def _solve(hand, task: FrameTask) -> dict:
+    """One frame's solve for :func:`.executor.run_frames`: the target hand travels once per worker."""
+    r = solve_frame(replace(task, hand=hand))
+    return {
+        "theta": r.theta,
+        "energy": r.energy,
+        "iterations": r.iterations,
+        "seconds": r.seconds,
+        "contact_distance": r.contact_distance,
+        "marker_distance": r.marker_distance,
+    }
+
+
+def _digest(*arrays) -> str:
+    h = hashlib.blake2b(digest_size=10)
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(str(a.shape).encode() + a.tobytes())
+    return h.hexdigest()
+
+
+def _motion_digest(motion: Motion) -> str:
+    return _digest(*(motion.to_arrays().values()))
+
+
+def retarget(
+    motion: Motion,
+    hand: HandSpec | SkinnedMesh,
+    annotation: HandPairAnnotation,
+    options: RetargetOptions | None = None,
+    *,
+    folder=None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    contacts: TransferredContacts | None = None,
+    progress: Progress | None = None,
+) -> Retarget:
+    """Retarget a motion onto another hand (§3): transfer, per-frame solves, refinement, spline, metrics.
+
+    Parameters
+    ----------
+    motion : Motion
+        The source motion, with paired ``hand_contacts`` and ``object_contacts`` (pair them first with
+        :func:`.pairing.pair_motion` when only one side is known), or none for markers only.
+    hand : HandSpec or SkinnedMesh
+        The target hand (a HandSpec is rebuilt in each worker; a SkinnedMesh is sent to each once).
+    annotation : HandPairAnnotation
+        For this source and target hand (checked against both meshes).
+    options : RetargetOptions, optional
+    folder : path-like, optional
+        Where per-frame results go as they finish (``folder/root``, ``folder/full``,
+        ``folder/refine-NN``); an interrupted retarget into the same folder resumes. Default: a
+        temporary folder, removed afterwards.
+    workers : int, optional
+        Worker processes (default: one per CPU; 1 solves in this process).
+    scheduler : str, optional
+        A Dask distributed scheduler's address to send the frames to instead.
+    contacts : TransferredContacts, optional
+        Target-hand contacts to use instead of transferring the motion's (e.g. the original contacts in
+        a cyclic retarget, §4.5).
+    progress : callable, optional
+        ``progress(stage, done, total)``.
+
+    Raises
+    ------
+    SolverError
+        For mismatched inputs, a folder holding another run's results, or failed solves.
+    """
+    options = options or RetargetOptions()
+    target = hand.build() if isinstance(hand, HandSpec) else hand
+    if not isinstance(target, SkinnedMesh):
+        raise SolverError(f"hand must be a HandSpec or a SkinnedMesh, got {type(hand).__name__}")
+    annotation.check(motion.hand_mesh, target.mesh)
+    if folder is None:
+        with tempfile.TemporaryDirectory(prefix="retarget-") as temp:
+            return _retarget(motion, hand, target, annotation, options, Path(temp), workers, scheduler,
+                             contacts, progress)  # fmt: skip
+    return _retarget(
+        motion, hand, target, annotation, options, Path(folder), workers, scheduler, contacts, progress
+    )
+
+
+def _retarget(motion, hand, target, annotation, options, folder, workers, scheduler, contacts, progress):
+    report = progress or (lambda _stage, _done, _total: None)
+    seconds, iterations = {}, {}
+    F = motion.n_frames
+    rig = target.rig
+
+    clock = time.perf_counter()
+    if contacts is None and motion.hand_contacts is not None:
+        contacts = transfer_motion(
+            motion, annotation, target.mesh, progress=lambda d, t: report("transfer", d, t)
+        )
+    report("transfer", 1, 1)
+    seconds["transfer"] = time.perf_counter() - clock
+    if contacts is not None and contacts.hand_contacts.n_frames != F:
+        raise SolverError(f"the contacts have {contacts.hand_contacts.n_frames} frames, the motion {F}")
+
+    tasks = build_tasks(
+        motion,
+        hand,
+        annotation,
+        options.weights,
+        hand_contacts=None if contacts is None else contacts.hand_contacts,
+        object_contacts=None if contacts is None else contacts.object_contacts,
+        use_table=options.use_table,
+    )
+    tasks = [replace(t, hand=None) for t in tasks]  # the hand goes to each worker once, not per frame
+    identity = {
+        "motion": _motion_digest(motion),
+        "hand": hand.__dict__
+        if isinstance(hand, HandSpec)
+        else _digest(target.mesh.vertices, target.mesh.faces),
+        "annotation": hashlib.blake2b(json.dumps(annotation.to_dict(), sort_keys=True).encode()).hexdigest(),
+        "contacts": None
+        if contacts is None
+        else _digest(contacts.hand_contacts.faces, contacts.hand_contacts.bary),
+        # What changes the per-frame solves (not the spline or the metrics, which are recomputed).
+        "weights": asdict(options.weights),
+        "root_pass": options.root_pass,
+        "use_table": options.use_table,
+    }
+    refine_identity = {"e_acc": options.e_acc, "max_refine_iterations": options.max_refine_iterations}
+
+    def run(stage: str, label: str, stage_tasks: dict[int, FrameTask]) -> dict[int, dict]:
+        extra = refine_identity if label == "refine" else {}
+        store = FrameStore(folder / stage, identity | extra | {"stage": stage})
+        return run_frames(
+            _solve, hand if isinstance(hand, HandSpec) else target, stage_tasks, store, workers=workers,
+            scheduler=scheduler, progress=lambda d, t: report(label, d, t),
+        )  # fmt: skip
+
+    def thetas(results: dict[int, dict], frames) -> np.ndarray:
+        return np.stack([results[int(f)]["theta"] for f in frames])
+
+    clock = time.perf_counter()
+    if options.root_pass:
+        roots = run("root", "root", {t.frame: t for t in tasks})
+        root_results = [_AsResult(f, r["theta"]) for f, r in roots.items()]
+        fulls_tasks = full_tasks(tasks, root_results)
+        iterations["root"] = int(sum(r["iterations"] for r in roots.values()))
+    else:
+        report("root", 1, 1)
+        fulls_tasks = [replace(t, stage="full", align_root=False) for t in tasks]
+        iterations["root"] = 0
+    seconds["root"] = time.perf_counter() - clock
+    clock = time.perf_counter()
+    fulls = run("full", "full", {t.frame: t for t in fulls_tasks})
+    estimate = thetas(fulls, range(F))
+    estimate_contact = np.array([fulls[f]["contact_distance"] for f in range(F)], dtype=np.float64)
+    iterations["full"] = int(sum(r["iterations"] for r in fulls.values()))
+    seconds["full"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    log = None
+    refined, valid = estimate.copy(), np.isfinite(estimate)
+    iterations["refine"] = 0
+    if options.refine and F >= 3:
+        by_frame = {t.frame: t for t in fulls_tasks}
+        step = [0]
+
+        def resolve(frames, seeds):
+            step[0] += 1
+            redo = {int(f): replace(by_frame[int(f)], seed=s) for f, s in zip(frames, seeds, strict=True)}
+            results = run(f"refine-{step[0]:02d}", "refine", redo)
+            iterations["refine"] += int(sum(r["iterations"] for r in results.values()))
+            return thetas(results, frames)
+
+        refinement = refine_trajectory(
+            estimate, motion.fps, rig.is_rotation, resolve, length=target.length, e_acc=options.e_acc,
+            max_iterations=options.max_refine_iterations,
+        )  # fmt: skip
+        refined, valid, log = refinement.theta, refinement.valid, refinement.log
+    report("refine", 1, 1)
+    seconds["refine"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    n_control = options.n_control or max(4, round(CONTROL_PER_SECOND * (F - 1) / motion.fps) + 1)
+    spline = fit_bspline(refined, min(n_control, F), valid=valid, fps=motion.fps)
+    theta = np.clip(spline.values, rig.lower, rig.upper)
+    report("spline", 1, 1)
+    seconds["spline"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    vertices = np.stack([target.posed_vertices(t) for t in theta])
+    marker, contact = _distances(motion, target, annotation, contacts, theta)
+    intersections = None
+    if options.intersections:
+        meter = IntersectionMeter(target.mesh, motion.object_mesh, motion.table, motion.table_size)
+        intersections = meter.motion(
+            vertices, motion.object_poses, progress=lambda d, t: report("metrics", d, t)
+        )
+    report("metrics", 1, 1)
+    seconds["metrics"] = time.perf_counter() - clock
+
+    result_motion = replace(
+        motion,
+        hand_mesh=target.mesh,
+        hand_vertices=vertices,
+        hand_contacts=None if contacts is None else contacts.hand_contacts,
+        object_contacts=None if contacts is None else contacts.object_contacts,
+        source_kind=hand.kind if isinstance(hand, HandSpec) else None,
+        source_scale=float(hand.scale) if isinstance(hand, HandSpec) else 1.0,
+        source_theta=theta,
+    )
+    return Retarget(
+        result_motion, theta, estimate, refined, valid, spline, log, marker, contact, estimate_contact,
+        intersections, contacts, seconds, iterations,
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class _AsResult:
+    """The two fields of a root result that :func:`.frames.full_tasks` reads."""
+
+    frame: int
+    theta: np.ndarray
+
+
+def _distances(motion, target, annotation, contacts, theta) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame mean marker and contact distances of the target hand posed by θ (F, d)."""
+    F = motion.n_frames
+    marker = np.full(F, np.nan)
+    if annotation.markers:
+        pairs = annotation.marker_pairs()
+        goal = marker_targets(motion, pairs)
+        posed = np.stack([target.posed_points(t, pairs.target)[0] for t in theta])
+        p = len(pairs.target)
+        marker = mean_distances(posed.reshape(-1, 3), goal.reshape(-1, 3), np.arange(F + 1) * p)
+    contact = np.full(F, np.nan)
+    if contacts is not None:
+        hand_c, obj_c = contacts.hand_contacts, contacts.object_contacts
+        offsets = np.asarray(hand_c.offsets)
+        P = np.concatenate([target.posed_points(theta[f], hand_c.frame(f))[0] for f in range(F)])
+        contact = mean_distances(P, object_contact_geometry(motion, obj_c)[0], offsets)
+    return marker, contact
+
+
+def save_result(result: Retarget, folder, annotation: HandPairAnnotation | None = None, plot: bool = True):
+    """Write a retarget's outputs into ``folder`` (each file atomically) and return their paths.
+
+    ``motion.npz`` (the target hand's motion, :class:`.motion.Motion` format), ``curves.npz`` (the final,
+    estimated and refined DOF curves, the valid mask, the spline's knots and control points, the per-frame
+    distances and intersection volumes), ``summary.json`` (:meth:`Retarget.summary`), ``annotation.json``
+    (the hand pair's annotation, when given) and ``metrics.png`` (the §4.2 plots; needs matplotlib).
+    """
+    from .metrics import plot_metrics
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = {
+        "motion": folder / "motion.npz",
+        "curves": folder / "curves.npz",
+        "summary": folder / "summary.json",
+    }
+    result.motion.save(paths["motion"])
+    curves = {
+        "theta": result.theta,
+        "estimate": result.estimate,
+        "refined": result.refined,
+        "valid": result.valid,
+        "knots": result.spline.knots,
+        "control": result.spline.control,
+        "marker_distance": result.marker_distance,
+        "contact_distance": result.contact_distance,
+        "estimate_contact_distance": result.estimate_contact_distance,
+    }
+    if result.intersections is not None:
+        for name in ("hand_object", "self_intersection", "table"):
+            curves[f"{name}_percent"] = getattr(result.intersections, name)
+    buffer = io.BytesIO()
+    np.savez(buffer, **curves)
+    write_bytes_atomically(paths["curves"], buffer.getvalue())
+    write_bytes_atomically(paths["summary"], json.dumps(result.summary(), indent=2).encode())
+    if annotation is not None:
+        paths["annotation"] = folder / "annotation.json"
+        annotation.save(paths["annotation"])
+    if plot:
+        counts = None if result.transferred is None else result.transferred.hand_contacts.count()
+        paths["plot"] = plot_metrics(
+            folder / "metrics.png", result.motion.fps, marker_distance=result.marker_distance,
+            contact_distance=result.contact_distance, contact_count=counts,
+            intersections=result.intersections,
+        )  # fmt: skip
+    return paths

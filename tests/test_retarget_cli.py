@@ -1,0 +1,83 @@
+"""`contact-edit synthesize` and `contact-edit retarget`: outputs, resume, refusal of bad input."""
+
+import json
+
+import numpy as np
+import pytest
+
+from contact_edit_addon.cli import main
+from solver.hands import make_hand
+from solver.retarget import Motion
+
+
+@pytest.fixture(scope="module")
+def motion_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cli") / "grasp.npz"
+    assert main(["synthesize", str(path), "--object", "sphere", "--frames", "44", "--density", "2"]) == 0
+    return path
+
+
+@pytest.fixture(scope="module")
+def retargeted(motion_file):
+    out = motion_file.parent / "alien"
+    args = ["retarget", str(motion_file), "--target", "alien", "-o", str(out), "--workers", "1"]
+    assert main([*args, "--no-refine", "--control", "8"]) == 0
+    return out, args
+
+
+def test_synthesize_writes_a_motion_with_ground_truth(motion_file):
+    motion = Motion.load(motion_file)
+    assert motion.n_frames == 44 and motion.fps == 120.0 and motion.source_kind == "human"
+    assert motion.hand_contacts.count().max() > 0
+
+
+def test_retarget_writes_every_output(retargeted, motion_file):
+    out, _ = retargeted
+    source = Motion.load(motion_file)
+    result = Motion.load(out / "motion.npz")
+    alien = make_hand("alien")
+    assert result.n_frames == source.n_frames and result.source_kind == "alien"
+    assert result.hand_mesh.topology_hash == alien.mesh.topology_hash
+    np.testing.assert_array_equal(result.object_poses, source.object_poses)
+    # The stored vertices are the alien posed by the stored DOF curves.
+    np.testing.assert_allclose(
+        result.hand_vertices[20], alien.posed_vertices(result.source_theta[20]), atol=1e-12
+    )
+    with np.load(out / "curves.npz") as curves:
+        assert curves["theta"].shape == (44, alien.rig.n_dofs) and curves["control"].shape == (
+            8,
+            alien.rig.n_dofs,
+        )
+        contact = curves["contact_distance"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["frames"] == 44 and summary["spline_control_points"] == 8
+    assert summary["median_contact_distance_mm"] == pytest.approx(np.nanmedian(contact) * 1e3)
+    assert (out / "annotation.json").is_file()
+    assert (out / "metrics.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert len(list((out / "frames" / "full").glob("*.npz"))) == 44
+
+
+def test_running_again_resumes_without_solving(retargeted):
+    out, args = retargeted
+    stored = {p: p.stat().st_mtime_ns for p in (out / "frames").rglob("*.npz")}
+    (out / "frames" / "full" / "000007.npz").unlink()  # as if interrupted before frame 7 was written
+    assert main([*args, "--no-refine", "--control", "8"]) == 0
+    again = {p: p.stat().st_mtime_ns for p in (out / "frames").rglob("*.npz")}
+    assert set(again) == set(stored)
+    changed = [p.name for p in again if again[p] != stored.get(p)]
+    assert changed == ["000007.npz"]  # only the missing frame was solved
+
+
+def test_bad_input_is_refused_with_a_message(retargeted, motion_file, tmp_path, capsys):
+    _, args = retargeted
+    # Another run's options into the same folder: refused, nothing overwritten.
+    assert main([*args, "--no-refine", "--no-contacts"]) == 1
+    assert "holds results of another run" in capsys.readouterr().err
+    broken = tmp_path / "broken.npz"
+    broken.write_bytes(motion_file.read_bytes()[:5000])
+    assert main(["retarget", str(broken), "--target", "alien", "-o", str(tmp_path / "x")]) == 1
+    assert "contact-edit retarget:" in capsys.readouterr().err
+    assert main(["retarget", str(motion_file), "--target", "robot", "-o", str(tmp_path / "y")]) == 1
+    assert "robot" in capsys.readouterr().err
+    assert main(["synthesize", str(tmp_path / "m.npz"), "--frames", "3"]) == 1
+    assert "frames" in capsys.readouterr().err

@@ -1,0 +1,100 @@
+"""Per-frame tasks run serially, in worker processes and on a Dask cluster give the same results, and a
+run that stops part-way resumes without solving any frame twice."""
+
+import os
+
+import numpy as np
+import pytest
+
+from solver import SolverError
+from solver.retarget.executor import FrameStore, run_frames
+
+RUN = {"motion": "abc", "target": "human"}
+
+
+def square_plus_offset(shared, task):
+    """A stand-in for a frame solve: module level, so worker processes can import it."""
+    return {"theta": np.asarray(task) ** 2 + shared["offset"], "pid": np.int64(os.getpid())}
+
+
+def tasks(n=12):
+    return {f: np.arange(3.0) + f for f in range(n)}
+
+
+def expected(f):
+    return (np.arange(3.0) + f) ** 2 + 0.5
+
+
+def test_serial_and_process_runs_agree_and_store_every_frame(tmp_path):
+    serial = run_frames(
+        square_plus_offset, {"offset": 0.5}, tasks(), FrameStore(tmp_path / "a", RUN), workers=1
+    )
+    seen = []
+    parallel = run_frames(
+        square_plus_offset, {"offset": 0.5}, tasks(), FrameStore(tmp_path / "b", RUN), workers=2,
+        progress=lambda done, total: seen.append((done, total)),
+    )  # fmt: skip
+    for f in range(12):
+        assert np.array_equal(serial[f]["theta"], expected(f))
+        assert np.array_equal(parallel[f]["theta"], expected(f))
+    assert os.getpid() not in {int(r["pid"]) for r in parallel.values()}  # worker processes did the work
+    assert seen[0] == (0, 12) and seen[-1] == (12, 12) and len(seen) == 13
+    assert sorted(FrameStore(tmp_path / "b", RUN).done()) == list(range(12))
+
+
+def test_an_interrupted_run_resumes_with_only_the_missing_frames(tmp_path):
+    store = FrameStore(tmp_path, RUN)
+    calls = []
+
+    def flaky(shared, task):
+        calls.append(int(task[0]))
+        if len(calls) == 5:
+            raise KeyboardInterrupt  # the user stops the run during the fifth frame
+        return square_plus_offset(shared, task)
+
+    with pytest.raises(KeyboardInterrupt):
+        run_frames(flaky, {"offset": 0.5}, tasks(), store, workers=1)
+    assert sorted(store.done()) == [0, 1, 2, 3]
+    solved = []
+    results = run_frames(
+        lambda s, t: solved.append(int(t[0])) or square_plus_offset(s, t),
+        {"offset": 0.5},
+        tasks(),
+        store,
+        workers=1,
+    )
+    assert solved == list(range(4, 12))  # only the frames the interrupted run had not stored
+    assert all(np.array_equal(results[f]["theta"], expected(f)) for f in range(12))
+    seen = []
+    again = run_frames(
+        lambda s, t: seen.append(t) or square_plus_offset(s, t), {"offset": 0.5}, tasks(), store
+    )
+    assert seen == [] and sorted(again) == list(range(12))  # nothing left to solve
+
+
+def test_a_folder_of_another_run_or_a_damaged_result_is_refused(tmp_path):
+    run_frames(square_plus_offset, {"offset": 0.5}, tasks(2), FrameStore(tmp_path, RUN), workers=1)
+    with pytest.raises(SolverError, match="holds results of another run"):
+        FrameStore(tmp_path, {**RUN, "target": "witch"})
+    FrameStore(tmp_path, RUN).path(1).write_bytes(b"PK\x03\x04 not really")
+    with pytest.raises(SolverError, match=r"000001\.npz: the stored result is damaged"):
+        FrameStore(tmp_path, RUN).load(1)
+
+
+def test_dask_cluster_gets_the_same_tasks(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
+    ) as cluster:
+        results = run_frames(
+            square_plus_offset,
+            {"offset": 0.5},
+            tasks(),
+            FrameStore(tmp_path, RUN),
+            scheduler=cluster.scheduler_address,
+        )
+    assert all(np.array_equal(results[f]["theta"], expected(f)) for f in range(12))
+    with pytest.raises(SolverError, match="cannot reach the Dask scheduler"):
+        run_frames(
+            square_plus_offset, {}, {99: 1.0}, FrameStore(tmp_path / "x", RUN), scheduler="tcp://127.0.0.1:9"
+        )
