@@ -25,7 +25,7 @@ from .pipeline import RetargetOptions, retarget
 OBJECT = "box"
 DENSITY = 90.0
 #: Frames of the slice timed with one and with two workers.
-SPEEDUP_FRAMES = 40
+SPEEDUP_FRAMES = 100
 
 
 @dataclass(frozen=True)
