@@ -380,10 +380,10 @@ class ContactIK:
             raise SolverError(f"free needs {rig.n_dofs} flags (one per DOF), got {mask.size}")
         mask &= ~rig.locked
         index = np.flatnonzero(mask)
-        start_energy = self.energy(theta, with_gradient=False)[0]
+        start_energy, start_terms = self.energy(theta, with_gradient=False)
         final, energy, terms, count, status = minimize(
             self.energy, theta, index, self._scale[index], rig, self.algorithm, max_evaluations, ftol_rel,
-            gradient=self.gradient, progress=progress,
+            gradient=self.gradient, progress=progress, start=(start_energy, start_terms),
         )  # fmt: skip
         return SolveResult(
             theta=final,
@@ -409,14 +409,16 @@ def minimize(
     *,
     gradient: str = "analytic",
     progress: Callable[[Progress], bool | None] | None = None,
+    start: tuple[float, dict] | None = None,
 ) -> tuple[np.ndarray, float, dict, int, str]:
     """Minimize ``energy(θ, with_gradient) -> (E, terms[, dE/dθ])`` over the DOFs ``index`` of θ with NLopt.
 
     The free DOFs are optimized as ``θ[index] / scale`` (so locations and angles are of one size) within
     the rig's bounds; the others keep θ's values. Returns the best pose seen (never NaN), its energy and
-    terms, the number of evaluations and the outcome (see :class:`SolveResult`).
+    terms, the number of evaluations and the outcome (see :class:`SolveResult`). ``start`` is θ's energy
+    and terms when the caller has them already.
     """
-    start_energy, start_terms = energy(theta, with_gradient=False)
+    start_energy, start_terms = start if start is not None else energy(theta, with_gradient=False)
     best = {"energy": start_energy, "theta": theta.copy(), "terms": start_terms}
     count = [0]
     cancelled = [False]

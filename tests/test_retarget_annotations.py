@@ -548,6 +548,12 @@ def test_marker_targets_match_a_hand_computed_oracle(human):
     expected = np.vstack([S[0], np.repeat(S[1], 4, axis=0), S[2], S[3].mean(0, keepdims=True)])
     got = pairs.targets(human.mesh, V)
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-14)
+    # Several frames at once give each frame's targets (one sparse product for all of them).
+    frames = np.stack([V, human.posed_vertices(human.rig.rest), V[::-1]])
+    batched = pairs.targets(human.mesh, frames)
+    assert batched.shape == (3, *got.shape)
+    for f in range(3):
+        np.testing.assert_allclose(batched[f], pairs.targets(human.mesh, frames[f]), rtol=0, atol=1e-15)
     # A subset keeps its markers' rows, in the annotation's order, and its own source points only.
     sub = pairs.subset(["centroid", "many"])
     assert sub.names == ("centroid", "many") and len(sub.source) == 4

@@ -179,14 +179,20 @@ class MarkerPairs:
 
     def targets(self, source_mesh: TriMesh, source_vertices) -> np.ndarray:
         """(p, 3) where each target marker point should be at a frame whose source hand has the posed
-        vertices ``source_vertices`` (n, 3)."""
+        vertices ``source_vertices`` (n, 3); (F, p, 3) for the vertices of F frames (F, n, 3) at once."""
         V = np.asarray(source_vertices, dtype=np.float64)
-        if V.shape != (source_mesh.n_vertices, 3):
+        if V.ndim not in (2, 3) or V.shape[-2:] != (source_mesh.n_vertices, 3):
             raise AnnotationError(
-                f"source vertices must have shape ({source_mesh.n_vertices}, 3), got {V.shape}"
+                f"source vertices must have shape ({source_mesh.n_vertices}, 3) or (F, "
+                f"{source_mesh.n_vertices}, 3), got {V.shape}"
             )
-        S = np.einsum("kj,kjd->kd", self.source.bary, V[source_mesh.faces[self.source.faces]])
-        return np.asarray(self.weights @ S)
+        corners = source_mesh.faces[self.source.faces]
+        S = np.einsum("kj,...kjd->...kd", self.source.bary, V[..., corners, :])  # (..., s, 3)
+        if V.ndim == 2:
+            return np.asarray(self.weights @ S)
+        F, s = S.shape[:2]
+        T = np.asarray(self.weights @ S.transpose(1, 0, 2).reshape(s, 3 * F))  # every frame in one product
+        return T.reshape(-1, F, 3).transpose(1, 0, 2)
 
     def subset(self, names) -> MarkerPairs:
         """Only the named markers (e.g. the fingertips for keypoint tracking)."""

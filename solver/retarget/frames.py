@@ -65,7 +65,7 @@ from ..sdf import Box
 from ..skinning import SkinnedMesh
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .annotations import HandPairAnnotation, MarkerPairs
+    from .annotations import HandPairAnnotation
     from .motion import Contacts, Motion
 
 #: The stages of the initial trajectory estimate (§3.4.2).
@@ -452,15 +452,6 @@ def object_contact_geometry(motion: Motion, contacts: Contacts) -> tuple[np.ndar
     )
 
 
-def marker_targets(motion: Motion, pairs: MarkerPairs) -> np.ndarray:
-    """(F, p, 3) the source hand's marker positions for every frame of a motion."""
-    V = np.asarray(motion.hand_vertices)
-    corners = motion.hand_mesh.faces[pairs.source.faces]  # (s, 3)
-    S = np.einsum("sj,fsjd->fsd", pairs.source.bary, V[:, corners])
-    W = pairs.weights
-    return np.stack([np.asarray(W @ S[f]) for f in range(len(S))])
-
-
 def build_tasks(
     motion: Motion,
     hand: HandSpec | SkinnedMesh,
@@ -508,7 +499,7 @@ def build_tasks(
     frame_ids = np.arange(F) if frames is None else np.asarray(list(frames), np.int64)
     if pairs is not None:
         sub = motion if frames is None else motion.select(frame_ids)
-        targets = marker_targets(sub, pairs)
+        targets = pairs.targets(sub.hand_mesh, sub.hand_vertices)
     if hand_contacts is not None:
         positions, normals = object_contact_geometry(motion, object_contacts)
     table = table_box(motion.table, motion.table_size) if use_table else None

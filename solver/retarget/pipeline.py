@@ -42,7 +42,6 @@ from .frames import (
     RetargetWeights,
     build_tasks,
     full_tasks,
-    marker_targets,
     object_contact_geometry,
     solve_frame,
 )
@@ -388,7 +387,7 @@ def _distances(motion, target, annotation, contacts, theta) -> tuple[np.ndarray,
     marker = np.full(F, np.nan)
     if annotation.markers:
         pairs = annotation.marker_pairs()
-        goal = marker_targets(motion, pairs)
+        goal = pairs.targets(motion.hand_mesh, motion.hand_vertices)
         posed = np.stack([target.posed_points(t, pairs.target)[0] for t in theta])
         p = len(pairs.target)
         marker = mean_distances(posed.reshape(-1, 3), goal.reshape(-1, 3), np.arange(F + 1) * p)
