@@ -200,7 +200,27 @@ def _median(counts) -> float:
     return float(np.median(touching)) if touching.size else 0.0
 
 
+def _weight(text: str) -> tuple[str, float]:
+    """``NAME=VALUE`` of one Eq. 3 weight (``--weight``), checked by argparse."""
+    from dataclasses import fields
+
+    from solver.retarget.frames import RetargetWeights
+
+    names = [f.name for f in fields(RetargetWeights)]
+    name, _, value = text.partition("=")
+    if name not in names:
+        raise argparse.ArgumentTypeError(f"{text!r}: the weights are {', '.join(names)} (e.g. c=2)")
+    try:
+        number = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: {value!r} is not a number") from None
+    if not (number >= 0 and number < float("inf")):
+        raise argparse.ArgumentTypeError(f"{text!r}: a weight must be a finite number >= 0")
+    return name, number
+
+
 def _retarget(args: argparse.Namespace) -> int:
+    from dataclasses import replace
     from pathlib import Path
 
     from solver import SolverError
@@ -222,8 +242,9 @@ def _retarget(args: argparse.Namespace) -> int:
         else:
             source = synthetic.source_hand(motion.source_kind, motion.source_scale)
             annotation = annotations.default_annotation(source, target.build())
+        weights = RetargetWeights(**dict(args.weight or ()))
         options = pipeline.RetargetOptions(
-            weights=RetargetWeights(c=0.0) if args.no_contacts else RetargetWeights(),
+            weights=replace(weights, c=0.0) if args.no_contacts else weights,
             root_pass=not args.no_root_pass, refine=not args.no_refine, n_control=args.control,
         )  # fmt: skip
         result = pipeline.retarget(
@@ -320,6 +341,11 @@ def build_parser() -> argparse.ArgumentParser:
     ret.add_argument("--workers", type=int, help="worker processes (default: one per CPU)")
     ret.add_argument("--scheduler", help="address of a Dask scheduler to send the frames to")
     ret.add_argument("--control", type=int, help="spline control points per DOF (default: 10 per second)")
+    ret.add_argument(
+        "--weight", action="append", type=_weight, metavar="NAME=VALUE",
+        help="an Eq. 3 weight: m (markers), c (contacts), cd, cn, t (table), j (prior); repeatable "
+        "(default: the paper's, m=1 c=1 cd=1 cn=1 t=1, and j=10)",
+    )  # fmt: skip
     ret.add_argument("--no-contacts", action="store_true", help="ablation: markers only (λc = 0)")
     ret.add_argument("--no-root-pass", action="store_true", help="ablation: no root pre-solve")
     ret.add_argument("--no-refine", action="store_true", help="skip the refinement")

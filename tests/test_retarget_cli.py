@@ -68,6 +68,27 @@ def test_running_again_resumes_without_solving(retargeted):
     assert changed == ["000007.npz"]  # only the missing frame was solved
 
 
+def test_weights_reach_the_solves(retargeted, capsys):
+    out, args = retargeted
+    stored = {p: p.stat().st_mtime_ns for p in (out / "frames").rglob("*.npz")}
+    # The defaults spelled out are the same run: it resumes with nothing to solve.
+    defaults = ["--weight", "m=1", "--weight", "c=1", "--weight", "j=10"]
+    assert main([*args, "--no-refine", "--control", "8", *defaults]) == 0
+    assert {p: p.stat().st_mtime_ns for p in (out / "frames").rglob("*.npz")} == stored
+    # Another contact weight is another run: refused, nothing overwritten.
+    assert main([*args, "--no-refine", "--control", "8", "--weight", "c=2"]) == 1
+    assert "holds results of another run" in capsys.readouterr().err
+    for bad, words in (
+        ("q=1", "the weights are m, c"),
+        ("c=-1", ">= 0"),
+        ("c=x", "not a number"),
+        ("j=inf", ">= 0"),
+    ):
+        with pytest.raises(SystemExit) as exit_:
+            main([*args, "--weight", bad])
+        assert exit_.value.code == 2 and words in capsys.readouterr().err
+
+
 def test_bad_input_is_refused_with_a_message(retargeted, motion_file, tmp_path, capsys):
     _, args = retargeted
     # Another run's options into the same folder: refused, nothing overwritten.
