@@ -8,6 +8,7 @@ import pytest
 from contact_edit_addon.cli import main
 from solver.hands import make_hand
 from solver.retarget import Motion
+from solver.retarget.metrics import IntersectionMeter
 
 
 @pytest.fixture(scope="module")
@@ -49,6 +50,14 @@ def test_retarget_writes_every_output(retargeted, motion_file):
             alien.rig.n_dofs,
         )
         contact = curves["contact_distance"]
+        measured = {k: curves[f"{k}_percent"] for k in ("hand_object", "self_intersection", "table")}
+    # The frames' intersections, measured as per-frame tasks, are those of the stored motion in order.
+    meter = IntersectionMeter(alien.mesh, result.object_mesh, result.table, result.table_size)
+    again = meter.motion(result.hand_vertices, result.object_poses)
+    assert any(values.max() > 0 for values in measured.values())
+    for name, values in measured.items():
+        np.testing.assert_allclose(values, getattr(again, name), rtol=1e-12, atol=1e-15)
+    assert next((out / "frames").glob("metrics-*/000043.npz")).is_file()
     summary = json.loads((out / "summary.json").read_text())
     assert summary["frames"] == 44 and summary["spline_control_points"] == 8
     assert summary["median_contact_distance_mm"] == pytest.approx(np.nanmedian(contact) * 1e3)

@@ -12,11 +12,11 @@ Stages, each with its own progress (``progress(stage, done, total)``, stages in 
    :func:`.spline.fit_bspline`), evaluated at every frame: the result.
 5. ``metrics`` — per-frame mean marker and contact distances and intersection volumes (§4.2).
 
-Every per-frame solve (root, full and the refinement's re-solves) is a task run by
-:func:`.executor.run_frames`: in worker processes on this machine, or on a Dask cluster given its
-scheduler's address, with each frame's result written to a folder as it finishes. Running the same
-retarget into the same folder again resumes: solved frames are read back, not solved again (the
-refinement's re-solves are deterministic, so they are found again too).
+Every per-frame solve (root, full and the refinement's re-solves) and every frame's intersection
+measure is a task run by :func:`.executor.run_frames`: in worker processes on this machine, or on a Dask
+cluster given its scheduler's address, with each frame's result written to a folder as it finishes.
+Running the same retarget into the same folder again resumes: solved frames are read back, not solved
+again (the refinement's re-solves are deterministic, so they are found again too).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import json
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -173,6 +173,14 @@ def _solve(hand, task: FrameTask) -> dict:
         "contact_distance": r.contact_distance,
         "marker_distance": r.marker_distance,
     }
+
+
+def _measure(meter: IntersectionMeter, task) -> dict:
+    """One frame's intersection volumes for :func:`.executor.run_frames`: the meter travels once per
+    worker; ``task`` is the frame's posed hand vertices and object pose."""
+    vertices, pose = task
+    r = meter.frame(vertices, pose)
+    return {f.name: getattr(r, f.name) for f in fields(Intersections)}
 
 
 def _digest(*arrays) -> str:
@@ -351,9 +359,16 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
     intersections = None
     if options.intersections:
         meter = IntersectionMeter(target.mesh, motion.object_mesh, motion.table, motion.table_size)
-        intersections = meter.motion(
-            vertices, motion.object_poses, progress=lambda d, t: report("metrics", d, t)
-        )
+        poses = motion.object_poses
+        # Frames are measured in parallel like the solves; the folder is named by the final curves, so a
+        # rerun with other curves (e.g. another control point count) measures them anew.
+        store = FrameStore(folder / f"metrics-{_digest(theta)}", identity | {"stage": "metrics"})
+        measured = run_frames(
+            _measure, meter, {f: (vertices[f], None if poses is None else poses[f]) for f in range(F)},
+            store, workers=workers, scheduler=scheduler, progress=lambda d, t: report("metrics", d, t),
+        )  # fmt: skip
+        columns = (np.array([measured[f][k.name] for f in range(F)]) for k in fields(Intersections))
+        intersections = Intersections(*(c.astype(np.float64) for c in columns))
     report("metrics", 1, 1)
     seconds["metrics"] = time.perf_counter() - clock
 
