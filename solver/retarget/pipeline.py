@@ -221,8 +221,8 @@ def retarget(
     options : RetargetOptions, optional
     folder : path-like, optional
         Where per-frame results go as they finish (``folder/root``, ``folder/full``,
-        ``folder/refine-NN``); an interrupted retarget into the same folder resumes. Default: a
-        temporary folder, removed afterwards.
+        ``folder/refine-NN``, ``folder/metrics-<digest of the final curves>``); an interrupted retarget
+        into the same folder resumes. Default: a temporary folder, removed afterwards.
     workers : int, optional
         Worker processes (default: one per CPU; 1 solves in this process).
     scheduler : str, optional
