@@ -373,8 +373,7 @@ class ContactIK:
         """
         rig = self.hand.rig
         start = time.perf_counter()
-        theta = rig.rest if theta0 is None else rig.check_theta(theta0, "theta0")
-        theta = np.clip(theta, rig.lower, rig.upper)
+        theta = rig.clip(rig.rest if theta0 is None else rig.check_theta(theta0, "theta0"))
         mask = np.ones(rig.n_dofs, bool) if free is None else np.array(free, dtype=bool).reshape(-1)
         if mask.size != rig.n_dofs:
             raise SolverError(f"free needs {rig.n_dofs} flags (one per DOF), got {mask.size}")

@@ -46,6 +46,23 @@ def _readonly(a: np.ndarray) -> np.ndarray:
     return a
 
 
+def into_limits(theta, is_rotation, lower, upper) -> np.ndarray:
+    """θ (..., d) brought within the DOF limits [lower, upper] (d,): a rotation outside them moves by
+    whole turns when that lands it inside (the same pose), then every value is clipped.
+
+    Clipping alone would give another pose to an angle a turn away: an unwrapped root angle of
+    8.06 rad clipped to the root's 2π limit is 102° off, wrapped back it is exact.
+    """
+    T = np.array(theta, dtype=np.float64)
+    rot = np.asarray(is_rotation, dtype=bool)
+    lo, hi = np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)
+    V, lo_r, hi_r = T[..., rot], lo[rot], hi[rot]
+    turns = np.ceil((lo_r - V) / (2 * np.pi)).clip(min=0) - np.ceil((V - hi_r) / (2 * np.pi)).clip(min=0)
+    moved = V + 2 * np.pi * turns
+    T[..., rot] = np.where((moved >= lo_r) & (moved <= hi_r), moved, V)
+    return np.clip(T, lo, hi)
+
+
 @dataclass(frozen=True)
 class Kinematics:
     """Forward kinematics of one pose, with what the analytic derivatives need.
@@ -338,8 +355,15 @@ class Rig:
         return _readonly(D)
 
     def clip(self, theta) -> np.ndarray:
-        """(d,) θ clipped into the limits."""
-        return np.clip(self.check_theta(theta), self.lower, self.upper)
+        """θ (d,), or poses (F, d), within the limits: rotations a whole turn out are wrapped back (the
+        same pose), the rest clipped (:func:`into_limits`)."""
+        T = np.asarray(theta, dtype=np.float64)
+        if T.ndim == 2:
+            if T.shape[1] != self.n_dofs or not np.isfinite(T).all():
+                raise SolverError(f"poses must be finite with shape (F, {self.n_dofs}), got {T.shape}")
+        else:
+            T = self.check_theta(T)
+        return into_limits(T, self.is_rotation, self.lower, self.upper)
 
     def check_theta(self, theta, what: str = "theta") -> np.ndarray:
         """(d,) float64 copy of θ; raises SolverError unless it has one finite value per DOF."""

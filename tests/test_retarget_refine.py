@@ -11,7 +11,6 @@ from solver.retarget.refine import (
     interpolate_gaps,
     lowpass,
     refine_trajectory,
-    wrap_into_bounds,
 )
 from solver.retarget.spline import fit_bspline
 
@@ -277,35 +276,6 @@ def test_angle_wrap(truth):
     # Every seed is on the branch of its frame's solve: within the spike of it, never 2π away.
     assert np.abs(seeds[:, 4] - noisy[frames, 4]).max() < 0.5
     assert np.all(np.abs(seeds[:, 4]) <= np.pi + 0.5)
-
-
-def test_wrap_into_bounds_keeps_the_pose():
-    """Unwrapped Euler angles past the rig's bounds come back by whole turns (the same rotation);
-    what no turn can bring back is clipped; translations are only clipped."""
-    from scipy.spatial.transform import Rotation
-
-    lower = np.array([-1.0, -2 * np.pi, -2 * np.pi, -2 * np.pi, -1.3])
-    upper = np.array([1.0, 2 * np.pi, 2 * np.pi, 2 * np.pi, 1.4])
-    rot = np.array([False, True, True, True, True])
-    theta = np.array(
-        [
-            [0.5, 8.06, 0.97, -8.43, 0.2],  # a root that turned past 2π (the cyclic retarget's last frames)
-            [1.5, -13.0, 1.0, 20.0, 1.5],  # two and three turns out; a joint just past its limit
-            [-3.0, 1.0, -1.0, 0.5, -7.0],  # inside; a joint 2π below, which a turn brings back to -0.72
-        ]
-    )
-    out = wrap_into_bounds(theta, rot, lower, upper)
-    assert np.all((out >= lower) & (out <= upper))
-    np.testing.assert_allclose(
-        Rotation.from_euler("xyz", out[:, 1:4]).as_matrix(),
-        Rotation.from_euler("xyz", theta[:, 1:4]).as_matrix(),
-        atol=1e-12,
-    )
-    np.testing.assert_allclose(out[0], [0.5, 8.06 - 2 * np.pi, 0.97, -8.43 + 2 * np.pi, 0.2])
-    assert out[1, 0] == 1.0 and out[2, 0] == -1.0  # translations clipped
-    assert out[1, 4] == 1.4  # 0.1 past the limit: 2π away is farther out, so it is clipped
-    np.testing.assert_allclose(out[2, 4], -7.0 + 2 * np.pi)
-    np.testing.assert_array_equal(wrap_into_bounds(out, rot, lower, upper), out)  # idempotent
 
 
 def test_failed_solves_are_interpolated_and_resolved(truth):

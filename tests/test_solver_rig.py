@@ -4,6 +4,8 @@ import numpy as np
 import pytest
 
 from solver import Rig, SolverError
+from solver.hands import make_hand
+from solver.rig import into_limits
 from solver.rotations import (
     EULER_ORDERS,
     axis_angle_to_matrix,
@@ -195,3 +197,40 @@ def test_bad_rigs_are_refused_with_what_and_where():
     moved[1, :3, 3] = [0, 0.5, 0]
     with pytest.raises(SolverError, match="only the root translates"):
         rig.theta_from_basis(moved)
+
+
+def test_into_limits_keeps_the_pose():
+    """Unwrapped Euler angles past the rig's bounds come back by whole turns (the same rotation);
+    what no turn can bring back is clipped; translations are only clipped."""
+    from scipy.spatial.transform import Rotation
+
+    lower = np.array([-1.0, -2 * np.pi, -2 * np.pi, -2 * np.pi, -1.3])
+    upper = np.array([1.0, 2 * np.pi, 2 * np.pi, 2 * np.pi, 1.4])
+    rot = np.array([False, True, True, True, True])
+    theta = np.array(
+        [
+            [0.5, 8.06, 0.97, -8.43, 0.2],  # a root that turned past 2π (the cyclic retarget's last frames)
+            [1.5, -13.0, 1.0, 20.0, 1.5],  # two and three turns out; a joint just past its limit
+            [-3.0, 1.0, -1.0, 0.5, -7.0],  # inside; a joint 2π below, which a turn brings back to -0.72
+        ]
+    )
+    out = into_limits(theta, rot, lower, upper)
+    assert np.all((out >= lower) & (out <= upper))
+    np.testing.assert_allclose(
+        Rotation.from_euler("xyz", out[:, 1:4]).as_matrix(),
+        Rotation.from_euler("xyz", theta[:, 1:4]).as_matrix(),
+        atol=1e-12,
+    )
+    np.testing.assert_allclose(out[0], [0.5, 8.06 - 2 * np.pi, 0.97, -8.43 + 2 * np.pi, 0.2])
+    assert out[1, 0] == 1.0 and out[2, 0] == -1.0  # translations clipped
+    assert out[1, 4] == 1.4  # 0.1 past the limit: 2π away is farther out, so it is clipped
+    np.testing.assert_allclose(out[2, 4], -7.0 + 2 * np.pi)
+    np.testing.assert_array_equal(into_limits(out, rot, lower, upper), out)  # idempotent
+    # Rig.clip does the same to one pose or to many.
+    rig = make_hand("human").rig
+    poses = np.tile(rig.rest, (2, 1))
+    poses[:, 3] = [8.06, -8.43]
+    np.testing.assert_allclose(rig.clip(poses)[:, 3], [8.06 - 2 * np.pi, -8.43 + 2 * np.pi])
+    np.testing.assert_array_equal(rig.clip(poses[1]), rig.clip(poses)[1])
+    with pytest.raises(SolverError, match="poses must be finite"):
+        rig.clip(np.full((2, rig.n_dofs), np.nan))

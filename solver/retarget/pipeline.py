@@ -47,7 +47,7 @@ from .frames import (
 )
 from .metrics import IntersectionMeter, Intersections, mean_distances
 from .motion import Motion
-from .refine import E_ACC, MAX_ITERATIONS, RefineLog, refine_trajectory, wrap_into_bounds
+from .refine import E_ACC, MAX_ITERATIONS, RefineLog, refine_trajectory
 from .spline import SplineFit, fit_bspline
 
 #: The stages a retarget reports progress for, in order.
@@ -349,7 +349,7 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
     clock = time.perf_counter()
     n_control = options.n_control or max(4, round(CONTROL_PER_SECOND * (F - 1) / motion.fps) + 1)
     spline = fit_bspline(refined, min(n_control, F), valid=valid, fps=motion.fps)
-    theta = wrap_into_bounds(spline.values, rig.is_rotation, rig.lower, rig.upper)
+    theta = rig.clip(spline.values)  # unwrapped angles past the limits wrap back, not clip
     report("spline", 1, 1)
     seconds["spline"] = time.perf_counter() - clock
 

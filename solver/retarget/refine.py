@@ -90,7 +90,6 @@ __all__ = [
     "interpolate_gaps",
     "lowpass",
     "refine_trajectory",
-    "wrap_into_bounds",
 ]
 
 
@@ -261,24 +260,6 @@ def _ffill(X: np.ndarray, ok: np.ndarray) -> np.ndarray:
     first = np.argmax(ok, axis=0)[None, :]
     src = np.where(last >= 0, last, first)
     return X[src, np.arange(X.shape[1])[None, :]]
-
-
-def wrap_into_bounds(theta, is_rotation, lower, upper) -> np.ndarray:
-    """θ (..., d) brought within the DOF bounds [lower, upper] (d,): a rotation sample outside them moves
-    by whole turns when that lands it inside (the same pose: unwrapped curves leave the rig's ±2π root
-    range on long turns), then every sample is clipped.
-
-    Clipping an unwrapped angle instead would give another pose: 8.06 rad clipped to 2π is a 102° error.
-    """
-    T = np.array(theta, dtype=np.float64)
-    rot = np.asarray(is_rotation, dtype=bool)
-    lo, hi = np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)
-    V = T[..., rot]
-    lo_r, hi_r = lo[rot], hi[rot]
-    turns = np.ceil((lo_r - V) / TWO_PI).clip(min=0) - np.ceil((V - hi_r) / TWO_PI).clip(min=0)
-    moved = V + TWO_PI * turns
-    T[..., rot] = np.where((moved >= lo_r) & (moved <= hi_r), moved, V)
-    return np.clip(T, lo, hi)
 
 
 # ------------------------------------------------------------------------------------ the refinement
