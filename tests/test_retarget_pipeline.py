@@ -91,6 +91,20 @@ def _finger_errors(theta, truth) -> np.ndarray:
     return np.degrees(np.abs(theta[:, 9:] - truth[:, 9:])).ravel()
 
 
+def _errors_against(r, source) -> tuple:
+    """A retarget onto the human hand against the source motion's ground truth: (finger DOF errors,
+    root location and rotation errors, palm frame location and rotation errors, mean vertex errors,
+    median contact distance), as the functions above."""
+    truth = source.source_theta
+    return (
+        _finger_errors(r.theta, truth),
+        *_root_errors(r.theta, truth),
+        *_palm_errors(r.theta, truth),
+        _vertex_error(r.motion.hand_vertices, source.hand_vertices),
+        _median_contact(r.contact_distance),
+    )
+
+
 def _root_jumps(theta) -> tuple[np.ndarray, np.ndarray]:
     """Frame-to-frame root location (m) and rotation (degrees) steps."""
     loc = np.linalg.norm(np.diff(theta[:, :3], axis=0), axis=1)
@@ -137,11 +151,7 @@ def targets(source):
 def test_same_hand_reproduces_the_source(source, same_hand):
     r = same_hand
     length = make_hand("human").length
-    fingers = _finger_errors(r.theta, source.source_theta)
-    loc, rot = _root_errors(r.theta, source.source_theta)
-    palm_loc, palm_rot = _palm_errors(r.theta, source.source_theta)
-    vertices = _vertex_error(r.motion.hand_vertices, source.hand_vertices)
-    contact = _median_contact(r.contact_distance)
+    fingers, loc, rot, palm_loc, palm_rot, vertices, contact = _errors_against(r, source)
     print(
         f"\nsame hand: finger DOF error median {np.median(fingers):.3f}°"
         f" p95 {np.percentile(fingers, 95):.3f}° max {fingers.max():.2f}°;"
@@ -216,11 +226,7 @@ def test_cyclic_human_witch_human(source, targets):
     ann = an.default_annotation(make_hand("witch"), make_hand("human"))
     back = retarget(witch.motion, HandSpec("human", 1.0), ann, NO_METRICS, workers=WORKERS, contacts=original)
     length = make_hand("human").length
-    fingers = _finger_errors(back.theta, source.source_theta)
-    loc, rot = _root_errors(back.theta, source.source_theta)
-    palm_loc, palm_rot = _palm_errors(back.theta, source.source_theta)
-    vertices = _vertex_error(back.motion.hand_vertices, source.hand_vertices)
-    contact = _median_contact(back.contact_distance)
+    fingers, loc, rot, palm_loc, palm_rot, vertices, contact = _errors_against(back, source)
     print(
         f"\ncyclic human→witch→human: finger DOF difference median {np.median(fingers):.3f}°"
         f" p95 {np.percentile(fingers, 95):.3f}° max {fingers.max():.2f}°; root (forearm) location median"

@@ -744,7 +744,9 @@ def _table_depths(motion: Motion) -> dict[str, np.ndarray]:
 # ------------------------------------------------------------------------------------------- API
 
 
-def _check(frames, fps, scale, contact_tolerance, density):
+def _check(frames, fps, scale, contact_tolerance, density) -> tuple[int, float]:
+    """The frame count and the contact tolerance (default :data:`CONTACT_TOLERANCE` times ``scale``) of
+    a motion's parameters, which are checked."""
     frames = int(frames)
     if frames < 4 * len(PHASES):
         raise SolverError(f"a motion needs at least {4 * len(PHASES)} frames, got {frames}")
@@ -753,7 +755,7 @@ def _check(frames, fps, scale, contact_tolerance, density):
             raise SolverError(f"{name} must be a positive finite number, got {value!r}")
     if contact_tolerance is not None and not (np.isfinite(contact_tolerance) and contact_tolerance > 0):
         raise SolverError(f"contact_tolerance must be a positive finite number, got {contact_tolerance!r}")
-    return frames
+    return frames, CONTACT_TOLERANCE * scale if contact_tolerance is None else float(contact_tolerance)
 
 
 @functools.lru_cache(maxsize=16)
@@ -868,8 +870,7 @@ def generate(
     SolverError
         For an unknown object or bad parameters, or if the generated motion would penetrate.
     """
-    frames = _check(frames, fps, scale, contact_tolerance, density)
-    tolerance = CONTACT_TOLERANCE * scale if contact_tolerance is None else float(contact_tolerance)
+    frames, tolerance = _check(frames, fps, scale, contact_tolerance, density)
     hand = make_hand("human", scale)
     _object_mesh(object_name, 1.0)
     scene, theta, poses = _plan(hand, object_name, GRASPS[object_name], frames, seed, scale, progress)
@@ -894,8 +895,7 @@ def bimanual(
     ``source_kind`` is ``"human-left"`` and its ``source_theta`` is in the DOFs of
     :func:`mirror_hand` (see the module docstring). Parameters as for :func:`generate`.
     """
-    frames = _check(frames, fps, scale, contact_tolerance, density)
-    tolerance = CONTACT_TOLERANCE * scale if contact_tolerance is None else float(contact_tolerance)
+    frames, tolerance = _check(frames, fps, scale, contact_tolerance, density)
     right = make_hand("human", scale)
     left = mirror_hand(right)
     _object_mesh(object_name, 1.0)
