@@ -14,7 +14,8 @@ Subcommands:
 * ``pose`` — pose the hand of a saved scene from its contacts and save it to a new file.
 * ``synthesize`` — write a synthetic hand-object manipulation with ground truth (the motion format).
 * ``retarget`` — retarget a motion onto another hand: per-frame solves in parallel processes (or on a
-  Dask cluster), refinement, spline fit, metrics and plots; an interrupted run resumes.
+  Dask cluster), refinement, spline fit, metrics and plots, with ``--baselines`` the §4.6 baselines and
+  Table 1; an interrupted run resumes.
 * ``bench retarget`` — the whole retarget of a long, densely touching motion, stage by stage, and its
   speed-up from one to two worker processes.
 
@@ -246,6 +247,7 @@ def _retarget(args: argparse.Namespace) -> int:
         options = pipeline.RetargetOptions(
             weights=replace(weights, c=0.0) if args.no_contacts else weights,
             root_pass=not args.no_root_pass, refine=not args.no_refine, n_control=args.control,
+            baselines=args.baselines,
         )  # fmt: skip
         result = pipeline.retarget(
             motion, target, annotation, options, folder=out / "frames", workers=args.workers,
@@ -272,6 +274,8 @@ def _retarget(args: argparse.Namespace) -> int:
     total = sum(result.seconds.values())
     shares = ", ".join(f"{k} {v:.1f} s ({100 * v / total:.0f}%)" for k, v in result.seconds.items())
     print(f"  time {total:.1f} s: {shares}")
+    if result.table is not None:
+        print("  " + result.table.text().replace("\n", "\n  "))
     for name, path in paths.items():
         print(f"  {name:<10} {path}")
     return 0
@@ -350,6 +354,10 @@ def build_parser() -> argparse.ArgumentParser:
     ret.add_argument("--no-root-pass", action="store_true", help="ablation: no root pre-solve")
     ret.add_argument("--no-refine", action="store_true", help="skip the refinement")
     ret.add_argument("--no-plot", action="store_true", help="do not write metrics.png")
+    ret.add_argument(
+        "--baselines", action="store_true",
+        help="also run the §4.6 baselines (fingertip keypoints, DexPilot keyvectors) and write Table 1",
+    )  # fmt: skip
     ret.set_defaults(run=_retarget)
     return parser
 

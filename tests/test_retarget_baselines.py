@@ -182,6 +182,23 @@ def test_bad_input_is_named(same):
         bl.comparison_table({"Truth": fake}, tasks)
 
 
+def test_table_statistics_in_closed_form():
+    contact = np.array([0.01, np.nan, 0.03])  # metres; the second frame has no contacts
+    marker = np.array([0.02, 0.04, 0.06])
+    table = bl.Table.from_distances({"A": (contact, marker), "B": (np.full(3, np.nan), marker)})
+    a = table.row("A")
+    assert (a.contact_median, a.contact_mean, a.contact_std) == pytest.approx((2.0, 2.0, 1.0))
+    assert (a.marker_median, a.marker_mean, a.marker_std) == pytest.approx((4.0, 4.0, np.sqrt(8 / 3)))
+    assert (a.frames, a.contact_frames) == (3, 2)
+    record = table.to_dict()
+    assert list(record) == ["A", "B"]
+    assert record["A"]["contact_std_cm"] == pytest.approx(1.0) and record["A"]["contact_frames"] == 2
+    # A method without contact frames has no contact statistics (None in JSON, not NaN).
+    assert record["B"]["contact_median_cm"] is None and record["B"]["marker_mean_cm"] == pytest.approx(4.0)
+    with pytest.raises(SolverError, match="no methods"):
+        bl.Table.from_distances({})
+
+
 # ------------------------------------------------------------------------ Table 1 on the witch hand
 
 

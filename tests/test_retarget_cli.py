@@ -111,3 +111,43 @@ def test_bad_input_is_refused_with_a_message(retargeted, motion_file, tmp_path, 
     assert "robot" in capsys.readouterr().err
     assert main(["synthesize", str(tmp_path / "m.npz"), "--frames", "3"]) == 1
     assert "frames" in capsys.readouterr().err
+
+
+def test_baselines_reuse_our_solves_and_write_table_1(retargeted, capsys):
+    """``--baselines`` on a finished run: our frames are read back, only the baselines are solved; Table 1
+    measures every method's final curves as the retarget measures its own."""
+    from solver.retarget import annotations as an
+    from solver.retarget import baselines as bl
+    from solver.retarget import frames as fr
+
+    out, args = retargeted
+    stored = {p: p.stat().st_mtime_ns for p in (out / "frames").rglob("*.npz")}
+    assert main([*args, "--no-refine", "--control", "8", "--baselines"]) == 0
+    assert "Keyvector" in capsys.readouterr().out
+    again = {p: p.stat().st_mtime_ns for p in (out / "frames").rglob("*.npz")}
+    assert all(again[p] == t for p, t in stored.items())  # nothing of ours solved again
+    assert {p.parent.name for p in set(again) - set(stored)} == {"keypoint", "keyvector"}
+    summary = json.loads((out / "summary.json").read_text())
+    table = summary["table1"]
+    assert list(table) == ["Keypoint", "Keyvector", "Ours"]
+    with np.load(out / "curves.npz") as curves:
+        ours = curves["contact_distance"]
+        methods = {"Keypoint": curves["keypoint_theta"], "Keyvector": curves["keyvector_theta"]}
+    assert table["Ours"]["contact_median_cm"] == pytest.approx(100 * np.nanmedian(ours), rel=1e-12)
+    # Both baselines are given the same root (our root pass), fitted alike.
+    np.testing.assert_allclose(methods["Keypoint"][:, :6], methods["Keyvector"][:, :6], rtol=0, atol=1e-12)
+    # Their rows against the baselines module's own per-frame measure of the stored curves.
+    motion = Motion.load(out / "motion.npz")
+    source = Motion.load(args[1])
+    annotation = an.HandPairAnnotation.load(out / "annotation.json")
+    tasks = fr.build_tasks(
+        source, fr.HandSpec("alien"), annotation,
+        hand_contacts=motion.hand_contacts, object_contacts=motion.object_contacts,
+    )  # fmt: skip
+    for method, theta in methods.items():
+        contact, marker = bl.frame_distances(tasks, theta)
+        assert table[method]["marker_median_cm"] == pytest.approx(100 * np.median(marker), rel=1e-9)
+        assert table[method]["contact_median_cm"] == pytest.approx(100 * np.nanmedian(contact), rel=1e-9)
+        assert table[method]["contact_frames"] == np.isfinite(contact).sum()
+    text = (out / "table1.txt").read_text()
+    assert [line.split()[0] for line in text.splitlines()[3:6]] == ["Keypoint", "Keyvector", "Ours"]

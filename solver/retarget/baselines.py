@@ -95,6 +95,7 @@ __all__ = [
     "keyvector_layout",
     "keyvector_problem",
     "keyvector_tasks",
+    "reseeded",
     "resolver",
     "solve_keyvector_frame",
     "solve_task",
@@ -679,25 +680,30 @@ def solve_tasks(
     return solve_frames(tasks, progress, map, solve=solve_task)
 
 
+def reseeded(task: FrameTask | KeyvectorTask, seed) -> FrameTask | KeyvectorTask:
+    """The task solved again from ``seed`` (a refinement's interpolated pose), except its fixed DOFs (the
+    baselines' given root), which keep the task's own values."""
+    seed = np.asarray(seed, np.float64)
+    free = np.ones(len(seed), bool) if task.free is None else np.asarray(task.free, bool)
+    new_seed = np.where(free, seed, task.seed)
+    if isinstance(task, FrameTask):
+        return replace(task, seed=new_seed, align_root=False)
+    return replace(task, seed=new_seed)
+
+
 def resolver(
     tasks: Sequence[FrameTask | KeyvectorTask], map: Callable | None = None
 ) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
     """The ``resolve(frames, seeds) -> θ`` callback of :func:`.refine.refine_trajectory` for a task list
-    (rows of the trajectory follow ``tasks``): the given frames are solved again from the given seeds,
-    except their fixed DOFs (the baselines' root), which keep the task's values."""
+    (rows of the trajectory follow ``tasks``): the given frames are solved again from the given seeds
+    (:func:`reseeded`)."""
     tasks = list(tasks)
 
     def resolve(frames: np.ndarray, seeds: np.ndarray) -> np.ndarray:
-        again = []
-        for i, seed in zip(np.asarray(frames, np.int64), np.asarray(seeds, np.float64), strict=True):
-            task = tasks[int(i)]
-            free = np.ones(len(seed), bool) if task.free is None else np.asarray(task.free, bool)
-            new_seed = np.where(free, seed, task.seed)
-            again.append(
-                replace(task, seed=new_seed, align_root=False)
-                if isinstance(task, FrameTask)
-                else replace(task, seed=new_seed)
-            )
+        again = [
+            reseeded(tasks[int(i)], seed)
+            for i, seed in zip(np.asarray(frames, np.int64), np.asarray(seeds, np.float64), strict=True)
+        ]
         return np.stack([r.theta for r in solve_tasks(again, map=map)])
 
     return resolve
@@ -801,6 +807,34 @@ class Table:
     rows: tuple[MethodSummary, ...]
     title: str = "Baseline distance metric comparisons (cm)"
 
+    @classmethod
+    def from_distances(cls, distances: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> Table:
+        """The table of methods' per-frame average distances: ``{method: (contact, marker)}``, each (n,)
+        in metres (contact NaN for frames without contacts), as :func:`frame_distances` measures them.
+        Rows follow the mapping's order."""
+        if not distances:
+            raise SolverError("no methods to compare")
+        return cls(
+            tuple(
+                _summary(method, np.asarray(contact, np.float64), np.asarray(marker, np.float64))
+                for method, (contact, marker) in distances.items()
+            )
+        )
+
+    def to_dict(self) -> dict:
+        """The statistics as plain numbers for JSON: ``{method: {"marker_median_cm": ..., "frames": ...}}``
+        (None where a statistic has no frames, e.g. contacts in a motion without any)."""
+        keys = ("marker_median", "marker_mean", "marker_std", "contact_median", "contact_mean", "contact_std")
+
+        def number(x):
+            return float(x) if np.isfinite(x) else None
+
+        return {
+            r.method: {**{f"{k}_cm": number(getattr(r, k)) for k in keys}, "frames": r.frames,
+                       "contact_frames": r.contact_frames}
+            for r in self.rows
+        }  # fmt: skip
+
     def row(self, method: str) -> MethodSummary:
         for r in self.rows:
             if r.method == method:
@@ -855,13 +889,12 @@ def comparison_table(
     """
     if not results:
         raise SolverError("no methods to compare")
-    rows = []
+    distances = {}
     for method, res in results.items():
         by_frame = {r.frame: r for r in res}
         missing = [t.frame for t in tasks if t.frame not in by_frame]
         if missing:
             raise SolverError(f"method {method!r} has no result for frames {missing[:10]}")
         thetas = np.stack([by_frame[t.frame].theta for t in tasks])
-        contact, marker = frame_distances(tasks, thetas, annotation, markers)
-        rows.append(_summary(method, contact, marker))
-    return Table(tuple(rows))
+        distances[method] = frame_distances(tasks, thetas, annotation, markers)
+    return Table.from_distances(distances)

@@ -10,11 +10,15 @@ Stages, each with its own progress (``progress(stage, done, total)``, stages in 
    :func:`.refine.refine_trajectory`).
 4. ``spline`` — a cubic B-spline per DOF with a fixed number of control points (§3.4.4,
    :func:`.spline.fit_bspline`), evaluated at every frame: the result.
-5. ``metrics`` — per-frame mean marker and contact distances and intersection volumes (§4.2).
+5. ``baselines`` (when asked for) — the §4.6 baselines on the same inputs, each given our root pass as
+   its root and the same per-frame solves, refinement and spline (:mod:`.baselines`); all three methods'
+   final curves measured alike into Table 1.
+6. ``metrics`` — per-frame mean marker and contact distances and intersection volumes (§4.2).
 
-Every per-frame solve (root, full and the refinement's re-solves) and every frame's intersection
-measure is a task run by :func:`.executor.run_frames`: in worker processes on this machine, or on a Dask
-cluster given its scheduler's address, with each frame's result written to a folder as it finishes.
+Every per-frame solve (root, full, the baselines', the refinements' re-solves) and every frame's
+intersection measure is a task run by :func:`.executor.run_frames`: in worker processes on this machine,
+or on a Dask cluster given its scheduler's address, with each frame's result written to a folder as it
+finishes.
 Running the same retarget into the same folder again resumes: solved frames are read back, not solved
 again (the refinement's re-solves are deterministic, so they are found again too).
 """
@@ -35,15 +39,14 @@ import numpy as np
 from ..errors import SolverError
 from ..skinning import SkinnedMesh
 from .annotations import HandPairAnnotation, TransferredContacts, transfer_motion
+from .baselines import Table, keypoint_tasks, keyvector_tasks, reseeded, solve_task
 from .executor import FrameStore, run_frames, write_bytes_atomically
 from .frames import (
-    FrameTask,
     HandSpec,
     RetargetWeights,
     build_tasks,
     full_tasks,
     object_contact_geometry,
-    solve_frame,
 )
 from .metrics import IntersectionMeter, Intersections, mean_distances
 from .motion import Motion
@@ -51,7 +54,10 @@ from .refine import E_ACC, MAX_ITERATIONS, RefineLog, refine_trajectory
 from .spline import SplineFit, fit_bspline
 
 #: The stages a retarget reports progress for, in order.
-STAGES = ("transfer", "root", "full", "refine", "spline", "metrics")
+STAGES = ("transfer", "root", "full", "refine", "spline", "baselines", "metrics")
+#: The §4.6 baselines ``RetargetOptions.baselines`` runs, by their Table 1 names, and how their tasks are
+#: made from ours (:mod:`.baselines`).
+BASELINES = {"Keypoint": keypoint_tasks, "Keyvector": keyvector_tasks}
 #: Default spline control points per second of motion (the paper's Table 4: 60-120 points for 6-13 s
 #: motions at 120 fps, 9-12 per second).
 CONTROL_PER_SECOND = 10.0
@@ -81,6 +87,8 @@ class RetargetOptions:
         Keep the hand out of the motion's table (Eq. 6).
     intersections : bool
         Measure intersection volumes (a few ms per frame).
+    baselines : bool
+        Also run the §4.6 baselines (:data:`BASELINES`) and compare the three methods (Table 1).
     """
 
     weights: RetargetWeights = field(default_factory=RetargetWeights)
@@ -91,6 +99,7 @@ class RetargetOptions:
     n_control: int | None = None
     use_table: bool = True
     intersections: bool = True
+    baselines: bool = False
 
 
 @dataclass(frozen=True, eq=False)
@@ -117,6 +126,10 @@ class Retarget:
         The same for the per-frame estimate.
     intersections : Intersections or None
     transferred : TransferredContacts
+    baselines : dict[str, ndarray]
+        The final DOF curves (F, d) of each baseline that ran, by its Table 1 name.
+    table : baselines.Table or None
+        Table 1 (with ``baselines``): marker and contact distances of every method's final curves.
     seconds : dict
         Wall-clock seconds of each stage.
     iterations : dict
@@ -135,6 +148,8 @@ class Retarget:
     estimate_contact_distance: np.ndarray
     intersections: Intersections | None
     transferred: TransferredContacts
+    baselines: dict
+    table: Table | None
     seconds: dict
     iterations: dict
 
@@ -159,12 +174,15 @@ class Retarget:
         if self.intersections is not None:
             for name in ("hand_object", "self_intersection", "table"):
                 out[f"max_{name}_percent"] = float(np.max(getattr(self.intersections, name)))
+        if self.table is not None:
+            out["table1"] = self.table.to_dict()
         return out
 
 
-def _solve(hand, task: FrameTask) -> dict:
-    """One frame's solve for :func:`.executor.run_frames`: the target hand travels once per worker."""
-    r = solve_frame(replace(task, hand=hand))
+def _solve(hand, task) -> dict:
+    """One frame's solve (ours or a baseline's) for :func:`.executor.run_frames`: the target hand travels
+    once per worker."""
+    r = solve_task(replace(task, hand=hand))
     return {
         "theta": r.theta,
         "energy": r.energy,
@@ -294,8 +312,8 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
     }
     refine_identity = {"e_acc": options.e_acc, "max_refine_iterations": options.max_refine_iterations}
 
-    def run(stage: str, label: str, stage_tasks: dict[int, FrameTask]) -> dict[int, dict]:
-        extra = refine_identity if label == "refine" else {}
+    def run(stage: str, label: str, stage_tasks: dict, refining: bool = False) -> dict[int, dict]:
+        extra = refine_identity if refining else {}
         store = FrameStore(folder / stage, identity | extra | {"stage": stage})
         return run_frames(
             _solve, hand if isinstance(hand, HandSpec) else target, stage_tasks, store, workers=workers,
@@ -304,6 +322,34 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
 
     def thetas(results: dict[int, dict], frames) -> np.ndarray:
         return np.stack([results[int(f)]["theta"] for f in frames])
+
+    def refine(name: str, label: str, estimate: np.ndarray, by_frame: dict):
+        """§3.4.3 on a per-frame estimate, re-solving ``by_frame``'s tasks into ``folder/<name>-NN``:
+        (refined, valid, log, objective evaluations)."""
+        if not (options.refine and F >= 3):
+            return estimate.copy(), np.isfinite(estimate), None, 0
+        step, evaluations = [0], [0]
+
+        def resolve(frames, seeds):
+            step[0] += 1
+            redo = {int(f): reseeded(by_frame[int(f)], s) for f, s in zip(frames, seeds, strict=True)}
+            results = run(f"{name}-{step[0]:02d}", label, redo, refining=True)
+            evaluations[0] += int(sum(r["iterations"] for r in results.values()))
+            return thetas(results, frames)
+
+        r = refine_trajectory(
+            estimate, motion.fps, rig.is_rotation, resolve, length=target.length, e_acc=options.e_acc,
+            max_iterations=options.max_refine_iterations,
+        )  # fmt: skip
+        return r.theta, r.valid, r.log, evaluations[0]
+
+    n_control = options.n_control or max(4, round(CONTROL_PER_SECOND * (F - 1) / motion.fps) + 1)
+
+    def fit(refined: np.ndarray, valid: np.ndarray) -> tuple[SplineFit, np.ndarray]:
+        """§3.4.4: the spline, and its curves brought into the rig's bounds (unwrapped angles past the
+        limits wrap back, not clip)."""
+        spline = fit_bspline(refined, min(n_control, F), valid=valid, fps=motion.fps)
+        return spline, rig.clip(spline.values)
 
     clock = time.perf_counter()
     if options.root_pass:
@@ -324,38 +370,46 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
     seconds["full"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
-    log = None
-    refined, valid = estimate.copy(), np.isfinite(estimate)
-    iterations["refine"] = 0
-    if options.refine and F >= 3:
-        by_frame = {t.frame: t for t in fulls_tasks}
-        step = [0]
-
-        def resolve(frames, seeds):
-            step[0] += 1
-            redo = {int(f): replace(by_frame[int(f)], seed=s) for f, s in zip(frames, seeds, strict=True)}
-            results = run(f"refine-{step[0]:02d}", "refine", redo)
-            iterations["refine"] += int(sum(r["iterations"] for r in results.values()))
-            return thetas(results, frames)
-
-        refinement = refine_trajectory(
-            estimate, motion.fps, rig.is_rotation, resolve, length=target.length, e_acc=options.e_acc,
-            max_iterations=options.max_refine_iterations,
-        )  # fmt: skip
-        refined, valid, log = refinement.theta, refinement.valid, refinement.log
+    refined, valid, log, iterations["refine"] = refine(
+        "refine", "refine", estimate, {t.frame: t for t in fulls_tasks}
+    )
     report("refine", 1, 1)
     seconds["refine"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
-    n_control = options.n_control or max(4, round(CONTROL_PER_SECOND * (F - 1) / motion.fps) + 1)
-    spline = fit_bspline(refined, min(n_control, F), valid=valid, fps=motion.fps)
-    theta = rig.clip(spline.values)  # unwrapped angles past the limits wrap back, not clip
+    spline, theta = fit(refined, valid)
     report("spline", 1, 1)
     seconds["spline"] = time.perf_counter() - clock
+
+    baselines, table = {}, None
+    if options.baselines:
+        # §4.6: each baseline is given our root pass as its "ground-truth" root (the full estimate's root
+        # without a root pass), solves every frame on its own and is refined and fitted like ours.
+        clock = time.perf_counter()
+        given = thetas(roots, range(F)) if options.root_pass else estimate
+        ours = [replace(t, hand=hand) for t in tasks]  # the baselines' task builders read the hand
+        for method, make in BASELINES.items():
+            name = method.lower()
+            by_frame = {t.frame: replace(t, hand=None) for t in make(ours, annotation, given)}
+            solved = run(name, "baselines", by_frame)
+            iterations[name] = int(sum(r["iterations"] for r in solved.values()))
+            b_refined, b_valid, _, evaluations = refine(
+                f"{name}-refine", "baselines", thetas(solved, range(F)), by_frame
+            )
+            iterations[name] += evaluations
+            baselines[method] = fit(b_refined, b_valid)[1]
+        report("baselines", 1, 1)
+        seconds["baselines"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
     vertices = np.stack([target.posed_vertices(t) for t in theta])
     marker, contact = _distances(motion, target, annotation, contacts, theta)
+    if options.baselines:
+        rows = {}
+        for method, curves in baselines.items():
+            b_marker, b_contact = _distances(motion, target, annotation, contacts, curves)
+            rows[method] = b_contact, b_marker
+        table = Table.from_distances({**rows, "Ours": (contact, marker)})
     intersections = None
     if options.intersections:
         meter = IntersectionMeter(target.mesh, motion.object_mesh, motion.table, motion.table_size)
@@ -384,7 +438,7 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
     )
     return Retarget(
         result_motion, theta, estimate, refined, valid, spline, log, marker, contact, estimate_contact,
-        intersections, contacts, seconds, iterations,
+        intersections, contacts, baselines, table, seconds, iterations,
     )  # fmt: skip
 
 
@@ -420,8 +474,10 @@ def save_result(result: Retarget, folder, annotation: HandPairAnnotation | None 
 
     ``motion.npz`` (the target hand's motion, :class:`.motion.Motion` format), ``curves.npz`` (the final,
     estimated and refined DOF curves, the valid mask, the spline's knots and control points, the per-frame
-    distances and intersection volumes), ``summary.json`` (:meth:`Retarget.summary`), ``annotation.json``
-    (the hand pair's annotation, when given) and ``metrics.png`` (the §4.2 plots; needs matplotlib).
+    distances and intersection volumes, each baseline's final curves as ``<name>_theta``),
+    ``summary.json`` (:meth:`Retarget.summary`), ``table1.txt`` (the baseline comparison, when the
+    baselines ran), ``annotation.json`` (the hand pair's annotation, when given) and ``metrics.png`` (the
+    §4.2 plots).
     """
     from .metrics import plot_metrics
 
@@ -447,10 +503,15 @@ def save_result(result: Retarget, folder, annotation: HandPairAnnotation | None 
     if result.intersections is not None:
         for name in ("hand_object", "self_intersection", "table"):
             curves[f"{name}_percent"] = getattr(result.intersections, name)
+    for method, theta in result.baselines.items():
+        curves[f"{method.lower()}_theta"] = theta
     buffer = io.BytesIO()
     np.savez(buffer, **curves)
     write_bytes_atomically(paths["curves"], buffer.getvalue())
     write_bytes_atomically(paths["summary"], json.dumps(result.summary(), indent=2).encode())
+    if result.table is not None:
+        paths["table1"] = folder / "table1.txt"
+        write_bytes_atomically(paths["table1"], (result.table.text() + "\n").encode())
     if annotation is not None:
         paths["annotation"] = folder / "annotation.json"
         annotation.save(paths["annotation"])
