@@ -52,6 +52,10 @@ the same way for every method, from its poses (:func:`frame_distances`): the tra
 contacts posed with the method's pose against their object contacts (the baselines do not optimize
 them), and the annotation's full marker set (or a named subset) against the source markers. The
 contact column uses frames with contacts only.
+
+**In a retarget.** ``RetargetOptions(baselines=True)`` (``contact-edit retarget --baselines``) runs both
+beside our method through the same executor and compares the three methods' final curves
+(:mod:`.pipeline`).
 """
 
 from __future__ import annotations
