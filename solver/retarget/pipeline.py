@@ -286,7 +286,7 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
     if contacts is not None and contacts.hand_contacts.n_frames != F:
         raise SolverError(f"the contacts have {contacts.hand_contacts.n_frames} frames, the motion {F}")
 
-    tasks = build_tasks(
+    built = build_tasks(
         motion,
         hand,
         annotation,
@@ -295,7 +295,7 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
         object_contacts=None if contacts is None else contacts.object_contacts,
         use_table=options.use_table,
     )
-    tasks = [replace(t, hand=None) for t in tasks]  # the hand goes to each worker once, not per frame
+    tasks = [replace(t, hand=None) for t in built]  # the hand goes to each worker once, not per frame
     identity = {
         "motion": _motion_digest(motion),
         "hand": hand.__dict__
@@ -323,25 +323,28 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
     def thetas(results: dict[int, dict], frames) -> np.ndarray:
         return np.stack([results[int(f)]["theta"] for f in frames])
 
+    def evaluations(results: dict[int, dict]) -> int:
+        return int(sum(r["iterations"] for r in results.values()))
+
     def refine(name: str, label: str, estimate: np.ndarray, by_frame: dict):
         """§3.4.3 on a per-frame estimate, re-solving ``by_frame``'s tasks into ``folder/<name>-NN``:
         (refined, valid, log, objective evaluations)."""
         if not (options.refine and F >= 3):
             return estimate.copy(), np.isfinite(estimate), None, 0
-        step, evaluations = [0], [0]
+        step, count = [0], [0]
 
         def resolve(frames, seeds):
             step[0] += 1
             redo = {int(f): reseeded(by_frame[int(f)], s) for f, s in zip(frames, seeds, strict=True)}
             results = run(f"{name}-{step[0]:02d}", label, redo, refining=True)
-            evaluations[0] += int(sum(r["iterations"] for r in results.values()))
+            count[0] += evaluations(results)
             return thetas(results, frames)
 
         r = refine_trajectory(
             estimate, motion.fps, rig.is_rotation, resolve, length=target.length, e_acc=options.e_acc,
             max_iterations=options.max_refine_iterations,
         )  # fmt: skip
-        return r.theta, r.valid, r.log, evaluations[0]
+        return r.theta, r.valid, r.log, count[0]
 
     n_control = options.n_control or max(4, round(CONTROL_PER_SECOND * (F - 1) / motion.fps) + 1)
 
@@ -356,7 +359,7 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
         roots = run("root", "root", {t.frame: t for t in tasks})
         root_results = [_AsResult(f, r["theta"]) for f, r in roots.items()]
         fulls_tasks = full_tasks(tasks, root_results)
-        iterations["root"] = int(sum(r["iterations"] for r in roots.values()))
+        iterations["root"] = evaluations(roots)
     else:
         report("root", 1, 1)
         fulls_tasks = [replace(t, stage="full", align_root=False) for t in tasks]
@@ -366,7 +369,7 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
     fulls = run("full", "full", {t.frame: t for t in fulls_tasks})
     estimate = thetas(fulls, range(F))
     estimate_contact = np.array([fulls[f]["contact_distance"] for f in range(F)], dtype=np.float64)
-    iterations["full"] = int(sum(r["iterations"] for r in fulls.values()))
+    iterations["full"] = evaluations(fulls)
     seconds["full"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
@@ -387,28 +390,23 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
         # without a root pass), solves every frame on its own and is refined and fitted like ours.
         clock = time.perf_counter()
         given = thetas(roots, range(F)) if options.root_pass else estimate
-        ours = [replace(t, hand=hand) for t in tasks]  # the baselines' task builders read the hand
         for method, make in BASELINES.items():
             name = method.lower()
-            by_frame = {t.frame: replace(t, hand=None) for t in make(ours, annotation, given)}
+            by_frame = {t.frame: replace(t, hand=None) for t in make(built, annotation, given)}
             solved = run(name, "baselines", by_frame)
-            iterations[name] = int(sum(r["iterations"] for r in solved.values()))
-            b_refined, b_valid, _, evaluations = refine(
+            b_refined, b_valid, _, resolved = refine(
                 f"{name}-refine", "baselines", thetas(solved, range(F)), by_frame
             )
-            iterations[name] += evaluations
+            iterations[name] = evaluations(solved) + resolved
             baselines[method] = fit(b_refined, b_valid)[1]
         report("baselines", 1, 1)
         seconds["baselines"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
     vertices = np.stack([target.posed_vertices(t) for t in theta])
-    marker, contact = _distances(motion, target, annotation, contacts, theta)
+    contact, marker = _distances(motion, target, annotation, contacts, theta)
     if options.baselines:
-        rows = {}
-        for method, curves in baselines.items():
-            b_marker, b_contact = _distances(motion, target, annotation, contacts, curves)
-            rows[method] = b_contact, b_marker
+        rows = {m: _distances(motion, target, annotation, contacts, c) for m, c in baselines.items()}
         table = Table.from_distances({**rows, "Ours": (contact, marker)})
     intersections = None
     if options.intersections:
@@ -451,7 +449,8 @@ class _AsResult:
 
 
 def _distances(motion, target, annotation, contacts, theta) -> tuple[np.ndarray, np.ndarray]:
-    """Per-frame mean marker and contact distances of the target hand posed by θ (F, d)."""
+    """Per-frame mean contact and marker distances of the target hand posed by θ (F, d), in the order of
+    :func:`.baselines.frame_distances`."""
     F = motion.n_frames
     marker = np.full(F, np.nan)
     if annotation.markers:
@@ -466,7 +465,7 @@ def _distances(motion, target, annotation, contacts, theta) -> tuple[np.ndarray,
         offsets = np.asarray(hand_c.offsets)
         P = np.concatenate([target.posed_points(theta[f], hand_c.frame(f))[0] for f in range(F)])
         contact = mean_distances(P, object_contact_geometry(motion, obj_c)[0], offsets)
-    return marker, contact
+    return contact, marker
 
 
 def save_result(result: Retarget, folder, annotation: HandPairAnnotation | None = None, plot: bool = True):
