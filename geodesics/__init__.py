@@ -14,6 +14,8 @@ The contact model (Contact Edit §4, Algorithms 1-5) is built on them:
   its axis, with transfer, translate, rotate and bend; :func:`farthest_pair_axis`, :func:`medial_axis`.
 * :class:`ContactSet` — named patches with parent links and pairs, saved as JSON contact files.
 * :class:`ContactAtlas` — charts around axial curves for moving contacts between different hands.
+* :mod:`geodesics.sampling` (even surface samples at a density) and :mod:`geodesics.brush` (the area
+  brush that paints and erases them).
 
 Tangent vectors are complex numbers in each point's tangent basis (see :mod:`geodesics.tangent`).
 """

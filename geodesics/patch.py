@@ -136,6 +136,25 @@ class ContactPatch:
         """The same points, parameterized against another axis (the axis tool)."""
         return ContactPatch(self.mesh, self.points, axis)
 
+    def subset(self, keep) -> ContactPatch:
+        """The patch with only the points ``keep`` selects (a bool mask or indices), around the same axis."""
+        index = np.arange(len(self))[np.asarray(keep)]
+        if index.size == 0:
+            raise ContactError("that would leave the patch without points")
+        patch = ContactPatch.__new__(ContactPatch)
+        patch._set(self.mesh, self.points[index], self.axis, self.binding[index], self.coords[index])
+        return patch
+
+    def mirrored_onto(self, axis: Axis) -> ContactPatch:
+        """This patch's mirror image around ``axis``: the axis of an earlier transfer of it, however that
+        has been moved, turned or bent since (so points added here can be carried over to it)."""
+        if len(axis) != len(self.axis):
+            raise ContactError(
+                f"the axis has {len(axis)} points but this patch's has {len(self.axis)}: it is not the axis "
+                "of a transfer of this patch"
+            )
+        return ContactPatch._on(axis, self.binding, np.conj(self.coords))
+
     def moved_to(self, axis: Axis) -> ContactPatch:
         """This patch rebuilt around ``axis`` (an axis of the same shape, e.g. one carried by a parent)."""
         if len(axis) != len(self.axis):

@@ -247,3 +247,28 @@ def test_an_axis_bending_round_a_saddle_retraces_through_its_bend():
     assert np.any(np.abs(axis.turning[1:-1] - 1) > 1e-6), "the path should bend round a saddle"
     again = axis.trace(mesh, axis.start, axis.direction)
     np.testing.assert_allclose(again.points.positions(mesh), axis.points.positions(mesh), atol=1e-9)
+
+
+def test_a_subset_keeps_its_points_exact_parameterization(patch):
+    keep = np.arange(len(patch)) % 3 != 0
+    part = patch.subset(keep)
+    assert len(part) == keep.sum() and part.axis is patch.axis
+    np.testing.assert_array_equal(part.positions(), patch.positions()[keep])
+    np.testing.assert_allclose(part.coords, relative_log_maps(part), atol=1e-12)
+    with pytest.raises(ContactError, match="without points"):
+        patch.subset(np.zeros(len(patch), bool))
+
+
+def test_a_grown_patch_mirrored_onto_its_transfers_edited_axis_extends_that_transfer(patch, plane):
+    """Points added to a hand patch after its transfer land on the object where the transferred patch
+    (moved and bent since) would have taken them, and the old points stay where they were."""
+    prism = cylinder(radius=0.9, height=3.0, n_around=40, n_along=40, jitter=0.2, seed=3)
+    edited = patch.transfer(prism, nearest(prism, [0.9, 0.0, 1.5]), 1j).rotate(0.3).bend(3, 0.2)
+    grown = disk_patch(plane, [0.7, 0.8], 0.3, 900, seed=1, axis=patch.axis)
+    both = ContactPatch(plane, SurfacePoints.concatenate([patch.points, grown.points]), patch.axis)
+    mirrored = both.mirrored_onto(edited.axis)
+    np.testing.assert_allclose(mirrored.positions()[: len(patch)], edited.positions(), atol=1e-9)
+    fresh = both.transfer(prism, nearest(prism, [0.9, 0.0, 1.5]), 1j).rotate(0.3).bend(3, 0.2)
+    np.testing.assert_allclose(mirrored.positions(), fresh.positions(), atol=1e-9)
+    with pytest.raises(ContactError, match="not the axis"):
+        both.mirrored_onto(Axis.between(prism, nearest(prism, [0.9, 0, 1.0]), nearest(prism, [0.9, 0, 1.1])))
