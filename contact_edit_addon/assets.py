@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import bpy
 import numpy as np
-from mathutils import Vector
+from mathutils import Matrix, Vector
 
 from geodesics import TriMesh
 from solver import hands, objects
@@ -150,11 +150,70 @@ class CONTACT_EDIT_OT_add_object(bpy.types.Operator):
         return {"FINISHED"}
 
 
+def hand_placement(hand: Hand, mug_radius: float, mug_height: float, gap: float) -> np.ndarray:
+    """(4, 4) the hand armature's world matrix for grasping an upright mug standing at the origin (handle
+    on +x): fingers along -y around the mug, palm facing it from -x, thumb up, the palm's centre ``gap``
+    off the mug's wall at mid height."""
+    rotation = np.array([[0.0, 0.0, -1.0], [0.0, -1.0, 0.0], [-1.0, 0.0, 0.0]])  # x->-z, y->-y, z->-x
+    wanted = np.array([-(mug_radius + gap), 0.0, 0.5 * mug_height])
+    M = np.eye(4)
+    M[:3, :3] = rotation
+    M[:3, 3] = wanted - rotation @ palm_centre(hand)
+    return M
+
+
+def palm_centre(hand: Hand) -> np.ndarray:
+    """The centre of the palm's skin (rest pose, the hand's own space)."""
+    palm = hand.palmar_faces(hand.rig.bone_index("hand"))
+    return hand.mesh.vertices[np.unique(hand.mesh.faces[palm])].mean(axis=0)
+
+
+#: The example's mug (metres) and the gap between the palm and its wall.
+MUG_RADIUS, MUG_HEIGHT, PALM_GAP = 0.04, 0.095, 0.004
+
+
+def example_scene(context, where) -> tuple[Hand, bpy.types.Object, bpy.types.Object]:
+    """A human hand ready to grasp a mug standing at ``where`` (what the demo starts from); both become
+    the scene's hand and object. Returns the procedural hand, its mesh object and the mug."""
+    hand = hands.make_hand("human")
+    hand_obj, armature = hand_objects(hand, "Hand", context.collection)
+    mug = mesh_object("Mug", objects.mug(radius=MUG_RADIUS, height=MUG_HEIGHT), context.collection)
+    offset = np.eye(4)
+    offset[:3, 3] = where
+    armature.matrix_world = Matrix(offset @ hand_placement(hand, MUG_RADIUS, MUG_HEIGHT, PALM_GAP))
+    mug.location = where
+    context.scene.contact_edit.hand, context.scene.contact_edit.target = hand_obj, mug
+    return hand, hand_obj, mug
+
+
+class CONTACT_EDIT_OT_add_example(bpy.types.Operator):
+    """Add a rigged human hand next to a mug, ready to paint, transfer and solve (what the demo starts
+    from), and frame them in the view"""
+
+    bl_idname = "contact_edit.add_example"
+    bl_label = "Example: Hand and Mug"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        _, hand, mug = example_scene(context, np.array(context.scene.cursor.location))
+        for other in context.selected_objects:
+            other.select_set(False)
+        mug.select_set(True)
+        hand.select_set(True)
+        context.view_layer.objects.active = hand
+        if context.area is not None and context.area.type == "VIEW_3D":
+            bpy.ops.view3d.view_selected()
+        self.report({"INFO"}, f"Added '{hand.name}' and '{mug.name}': paint on the hand, then transfer")
+        return {"FINISHED"}
+
+
 class VIEW3D_MT_contact_edit_add(bpy.types.Menu):
     bl_label = "Contact Edit"
 
     def draw(self, context):
         layout = self.layout
+        layout.operator(CONTACT_EDIT_OT_add_example.bl_idname, text="Example", icon="HAND")
+        layout.separator()
         for kind in hands.KINDS:
             label = "Tentacle" if kind == "tentacle" else f"{kind.title()} Hand"
             layout.operator(CONTACT_EDIT_OT_add_hand.bl_idname, text=label).kind = kind
@@ -167,7 +226,12 @@ def draw_add_menu(self, context) -> None:
     self.layout.menu(VIEW3D_MT_contact_edit_add.__name__, icon="HAND")
 
 
-classes = (CONTACT_EDIT_OT_add_hand, CONTACT_EDIT_OT_add_object, VIEW3D_MT_contact_edit_add)
+classes = (
+    CONTACT_EDIT_OT_add_hand,
+    CONTACT_EDIT_OT_add_object,
+    CONTACT_EDIT_OT_add_example,
+    VIEW3D_MT_contact_edit_add,
+)
 
 
 def register() -> None:

@@ -82,7 +82,7 @@ def pose_scene(
     armature = problem.posed.armature_object()
     animated = armature.animation_data is not None and armature.animation_data.action is not None
     problem.apply(result.theta, scene.frame_current if frame is not None or animated else None)
-    settings.last_solve = posing.summary(problem, result)
+    settings.last_solve = posing.summary(scene, problem, result)
     _save_atomically(output)
     return settings.last_solve
 

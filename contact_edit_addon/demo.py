@@ -17,10 +17,8 @@ from pathlib import Path
 
 import bpy
 import numpy as np
-from mathutils import Matrix, Vector
+from mathutils import Vector
 from scipy.spatial import cKDTree
-
-from solver import hands, objects
 
 from . import assets, bridge, store
 
@@ -41,8 +39,6 @@ PATCHES = {
 PALM_RADIUS = 0.025
 #: A patch is transferred where it lands if the curled hand brings it this close to the mug (metres).
 LANDING_DISTANCE = 0.01
-#: Gap left between the palm and the mug when placing the hand (metres).
-PALM_GAP = 0.004
 OPEN_FRAME, GRASP_FRAME = 1, 24
 
 
@@ -67,11 +63,8 @@ def run(out: Path, render: bool = True, progress: Callable[[str], None] = lambda
     progress("building the hand and the mug")
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
-    hand = hands.make_hand("human")
-    hand_obj, armature = assets.hand_objects(hand, "Hand", scene.collection)
-    mug = assets.mesh_object("Mug", objects.mug(), scene.collection)
-    scene.contact_edit.hand, scene.contact_edit.target = hand_obj, mug
-    armature.matrix_world = Matrix(_hand_placement(hand))
+    hand, hand_obj, mug = assets.example_scene(bpy.context, np.zeros(3))
+    armature = hand_obj.parent
 
     progress("painting patches on the hand")
     bpy.context.view_layer.objects.active = hand_obj
@@ -80,7 +73,7 @@ def run(out: Path, render: bool = True, progress: Callable[[str], None] = lambda
         if name == "palm":
             faces = faces[
                 np.linalg.norm(
-                    hand.mesh.vertices[hand.mesh.faces[faces]].mean(axis=1) - _palm_centre(hand), axis=1
+                    hand.mesh.vertices[hand.mesh.faces[faces]].mean(axis=1) - assets.palm_centre(hand), axis=1
                 )
                 < PALM_RADIUS
             ]
@@ -124,24 +117,6 @@ def run(out: Path, render: bool = True, progress: Callable[[str], None] = lambda
         summary=scene.contact_edit.last_solve,
         seconds=time.perf_counter() - start,
     )
-
-
-def _hand_placement(hand: hands.Hand) -> np.ndarray:
-    """The armature's world matrix: fingers along -y around the upright mug, palm facing it from -x
-    (the handle is on +x), thumb up, the palm's centre just off the mug's wall at mid height."""
-    rotation = np.array([[0.0, 0.0, -1.0], [0.0, -1.0, 0.0], [-1.0, 0.0, 0.0]])  # x->-z, y->-y, z->-x
-    centre = _palm_centre(hand)
-    radius = 0.04  # objects.mug's default
-    wanted = np.array([-(radius + PALM_GAP), 0.0, 0.5 * 0.095])
-    M = np.eye(4)
-    M[:3, :3] = rotation
-    M[:3, 3] = wanted - rotation @ centre
-    return M
-
-
-def _palm_centre(hand: hands.Hand) -> np.ndarray:
-    palm = hand.palmar_faces(hand.rig.bone_index("hand"))
-    return hand.mesh.vertices[np.unique(hand.mesh.faces[palm])].mean(axis=0)
 
 
 def _landing(hand_obj, armature) -> dict[str, tuple[np.ndarray, np.ndarray]]:

@@ -1,4 +1,6 @@
-"""The "Contact" tab of the 3D viewport's sidebar: the objects, the patch list, the tools."""
+"""The "Contact" tab of the 3D viewport's sidebar: the objects, then sub-panels for the patches and their
+tools, the brush, the pose solve, and the library. Every line is short enough for the sidebar's
+default width; long messages (the last solve) are split into one line per clause."""
 
 import bpy
 
@@ -12,16 +14,18 @@ class CONTACT_EDIT_UL_patches(bpy.types.UIList):
         row = layout.row(align=True)
         row.prop(item, "color", text="")
         row.prop(item, "name", text="", emboss=False)
-        detail = f"{item.points} pts"
+        detail = f"{item.points}"
         if item.parent:
             detail += f" · in {item.parent}"
         if item.pair:
-            detail += f" · ↔ {item.pair}"
+            detail += " · ↔"
         row.label(text=detail)
         row.prop(item, "visible", text="", icon="HIDE_OFF" if item.visible else "HIDE_ON", emboss=False)
 
 
 class VIEW3D_PT_contact_edit(bpy.types.Panel):
+    """The hand and the object posed against each other."""
+
     bl_label = "Contact Edit"
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
@@ -31,53 +35,127 @@ class VIEW3D_PT_contact_edit(bpy.types.Panel):
         layout = self.layout
         settings = context.scene.contact_edit
         column = layout.column(align=True)
-        column.prop(settings, "hand")
-        column.prop(settings, "target")
-        layout.prop(settings, "axis_method")
-        layout.prop(settings, "deformed")
-        self.draw_solver(layout, settings)
+        column.prop(settings, "hand", text="", icon="VIEW_PAN")
+        column.prop(settings, "target", text="", icon="MESH_CUBE")
+        if settings.hand is None or settings.target is None:
+            layout.operator("contact_edit.add_example", icon="ADD")
 
+
+class VIEW3D_PT_contact_edit_patches(bpy.types.Panel):
+    """The active object's patches and the tools that make and move them."""
+
+    bl_label = "Patches"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Contact"
+    bl_parent_id = "VIEW3D_PT_contact_edit"
+
+    def draw(self, context):
+        layout = self.layout
         obj = context.active_object
         if obj is None or obj.type != "MESH":
-            layout.label(text="Select a mesh to see its contacts", icon="INFO")
+            layout.label(text="Select a mesh", icon="INFO")
             return
-        layout.label(text=f"Patches of {obj.name}")
+        layout.label(text=obj.name, icon="MESH_DATA")
         layout.template_list(
-            "CONTACT_EDIT_UL_patches", "", obj.contact_edit, "patches", obj.contact_edit, "active"
+            "CONTACT_EDIT_UL_patches", "", obj.contact_edit, "patches", obj.contact_edit, "active", rows=3
         )
+        column = layout.column(align=True)
+        row = column.row(align=True)
+        row.operator("contact_edit.paint", text="Brush", icon="BRUSH_DATA").source = "STROKE"
+        row.operator("contact_edit.paint", text="Selected", icon="RESTRICT_SELECT_OFF").source = "SELECTION"
+        row = column.row(align=True)
+        row.operator("contact_edit.axis", text="Axis", icon="CURVE_PATH")
+        row.operator("contact_edit.transfer", text="Transfer", icon="FORWARD")
+        row = column.row(align=True)
+        row.operator("contact_edit.translate", text="Move", icon="VIEW_PAN")
+        row.operator("contact_edit.rotate", text="Turn", icon="DRIVER_ROTATIONAL_DIFFERENCE")
+        row.operator("contact_edit.bend", text="Bend", icon="MOD_SIMPLEDEFORM")
+        column.operator("contact_edit.clear", text="Remove", icon="X")
 
-        grid = layout.grid_flow(columns=2, align=True)
-        grid.operator("contact_edit.paint", text="From selection").source = "SELECTION"
-        grid.operator("contact_edit.paint", text="Brush").source = "STROKE"
-        grid.operator("contact_edit.axis", text="Axis")
-        grid.operator("contact_edit.transfer", text="Transfer")
-        grid.operator("contact_edit.translate", text="Translate")
-        grid.operator("contact_edit.rotate", text="Rotate")
-        grid.operator("contact_edit.bend", text="Bend")
-        grid.operator("contact_edit.clear", text="Remove")
-        layout.operator("contact_edit.make_proxy", text="Make manifold proxy", icon="MOD_REMESH")
+
+class VIEW3D_PT_contact_edit_brush(bpy.types.Panel):
+    """The area brush and the default axis of new patches."""
+
+    bl_label = "Brush"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Contact"
+    bl_parent_id = "VIEW3D_PT_contact_edit"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        settings = context.scene.contact_edit
+        column = layout.column(align=True)
+        column.prop(settings, "brush_radius")
+        column.prop(settings, "brush_density", text="Points/cm²")
+        layout.prop(settings, "axis_method", text="Axis")
+        layout.prop(settings, "deformed", text="Posed")
+
+
+class VIEW3D_PT_contact_edit_pose(bpy.types.Panel):
+    """Contact IK and flex-to-contact, with the solver's weights and how the last solve went."""
+
+    bl_label = "Pose"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Contact"
+    bl_parent_id = "VIEW3D_PT_contact_edit"
+
+    def draw(self, context):
+        layout = self.layout
+        settings = context.scene.contact_edit
         row = layout.row(align=True)
-        row.operator("contact_edit.library_save", text="Save library", icon="EXPORT")
-        row.operator("contact_edit.library_load", text="Load library", icon="IMPORT")
-
-    @staticmethod
-    def draw_solver(layout, settings) -> None:
-        box = layout.box()
-        row = box.row()
-        row.label(text="Pose", icon="ARMATURE_DATA")
-        row.operator("contact_edit.reset_weights", text="", icon="LOOP_BACK")
-        column = box.column(align=True)
-        column.prop(settings, "weight_distance")
-        column.prop(settings, "weight_normal")
-        column.prop(settings, "weight_prior")
-        box.prop(settings, "keyframe")
-        row = box.row(align=True)
         for stage, label, _ in posing.STAGES:
             solve = row.operator("contact_edit.solve", text=label.split()[0])
             solve.stage, solve.keyframe = stage, settings.keyframe
-        box.operator("contact_edit.flex_to_contact", icon="VIEW_PAN").keyframe = settings.keyframe
+        row = layout.row(align=True)
+        row.operator(
+            "contact_edit.flex_to_contact", text="Flex", icon="VIEW_PAN"
+        ).keyframe = settings.keyframe
+        row.prop(settings, "keyframe", text="Key", toggle=True, icon="KEY_HLT")
         if settings.last_solve:
-            box.label(text=settings.last_solve, icon="INFO")
+            box = layout.box().column(align=True)
+            for i, clause in enumerate(settings.last_solve.split("; ")):
+                box.label(text=clause, icon="INFO" if i == 0 else "BLANK1")
+        header, body = layout.panel("contact_edit_weights", default_closed=True)
+        header.label(text="Weights")
+        header.operator("contact_edit.reset_weights", text="", icon="LOOP_BACK", emboss=False)
+        if body is not None:
+            body.use_property_split = True
+            body.use_property_decorate = False
+            column = body.column(align=True)
+            column.prop(settings, "weight_distance", text="Distance")
+            column.prop(settings, "weight_normal", text="Normals")
+            column.prop(settings, "weight_prior", text="Rest pose")
 
 
-classes = (CONTACT_EDIT_UL_patches, VIEW3D_PT_contact_edit)
+class VIEW3D_PT_contact_edit_library(bpy.types.Panel):
+    """Saving and loading patches as reusable libraries; manifold proxies for broken meshes."""
+
+    bl_label = "Library"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Contact"
+    bl_parent_id = "VIEW3D_PT_contact_edit"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = self.layout
+        row = layout.row(align=True)
+        row.operator("contact_edit.library_save", text="Save", icon="EXPORT")
+        row.operator("contact_edit.library_load", text="Load", icon="IMPORT")
+        layout.operator("contact_edit.make_proxy", text="Manifold Proxy", icon="MOD_REMESH")
+
+
+classes = (
+    CONTACT_EDIT_UL_patches,
+    VIEW3D_PT_contact_edit,
+    VIEW3D_PT_contact_edit_patches,
+    VIEW3D_PT_contact_edit_brush,
+    VIEW3D_PT_contact_edit_pose,
+    VIEW3D_PT_contact_edit_library,
+)

@@ -126,14 +126,33 @@ def free_dofs(posed: bridge.PosedHand, armature: bpy.types.Object, stage: str) -
     raise ValueError(f"unknown stage {stage!r}; use one of {', '.join(s[0] for s in STAGES)}")
 
 
-def summary(problem: Problem, result: SolveResult) -> str:
-    """One line for the animator: contacts, how close they got, how long it took."""
+#: How the panel and reports say how a solve ended (SolveResult.status, or "kept" when the user stopped it).
+OUTCOMES = {
+    "converged": "converged",
+    "max evaluations": "stopped at the evaluation limit",
+    "stopped": "stopped: no further progress",
+    "cancelled": "cancelled",
+    "kept": "stopped by you; kept the best pose",
+}
+
+
+def length_text(scene: bpy.types.Scene, value: float) -> str:
+    """A length in scene units as the scene displays it (e.g. '1.2 mm')."""
+    units = scene.unit_settings
+    if units.system == "NONE":
+        return f"{value:.4g}"
+    return bpy.utils.units.to_string(units.system, "LENGTH", value * units.scale_length, precision=3)
+
+
+def summary(scene: bpy.types.Scene, problem: Problem, result: SolveResult, outcome: str | None = None) -> str:
+    """How the solve went, in clauses separated by '; ' (the panel puts one per line): contacts, how
+    close they got, evaluations, time and outcome."""
     mean = float(result.distances.mean()) * problem.world_scale
     worst = float(result.distances.max()) * problem.world_scale
     return (
-        f"{len(result.distances)} contacts in {len(problem.pairs)} patch pairs: mean distance {mean:.4g}, "
-        f"largest {worst:.4g} (scene units); {result.iterations} evaluations in {result.seconds:.2f} s"
-        f" ({result.status})"
+        f"{len(result.distances)} contacts in {len(problem.pairs)} patch pairs; "
+        f"mean distance {length_text(scene, mean)}, largest {length_text(scene, worst)}; "
+        f"{result.iterations} evaluations in {result.seconds:.2f} s, {OUTCOMES[outcome or result.status]}"
     )
 
 

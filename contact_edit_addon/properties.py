@@ -52,6 +52,22 @@ class CONTACT_EDIT_PG_scene(bpy.types.PropertyGroup):
         ],
         default="FARTHEST",
     )
+    brush_radius: bpy.props.IntProperty(
+        name="Radius",
+        subtype="PIXEL",
+        default=30,
+        min=1,
+        max=1000,
+        description="The contact brush's radius in screen pixels (F while painting changes it)",
+    )
+    brush_density: bpy.props.FloatProperty(
+        name="Density",
+        default=100.0,
+        min=0.01,
+        soft_max=2000.0,
+        precision=1,
+        description="Points per square centimetre of surface that the contact brush paints",
+    )
     deformed: bpy.props.BoolProperty(
         name="Use deformed shape",
         description="Work on the hand's current deformed shape instead of its rest shape",

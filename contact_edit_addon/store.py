@@ -14,9 +14,9 @@ from geodesics.contacts import write_atomically
 
 from . import bridge
 
-#: Patch colours, assigned in order; a transferred patch takes its counterpart's colour.
+#: Patch colours, assigned in order; a transferred patch takes its counterpart's colour. Blender's own
+#: selection orange comes last, so the first patches never look like selected vertices in Edit Mode.
 PALETTE = (
-    (0.95, 0.45, 0.10, 1.0),
     (0.15, 0.60, 0.95, 1.0),
     (0.30, 0.80, 0.30, 1.0),
     (0.90, 0.25, 0.60, 1.0),
@@ -24,6 +24,7 @@ PALETTE = (
     (0.55, 0.35, 0.90, 1.0),
     (0.20, 0.85, 0.80, 1.0),
     (0.85, 0.20, 0.20, 1.0),
+    (0.95, 0.45, 0.10, 1.0),
 )
 
 
@@ -65,6 +66,17 @@ def save(obj: bpy.types.Object, contacts: ContactSet, colors: dict | None = None
         entry.pair = contacts.pairs.get(name, "")
         entry.visible = visible.get(name, True)
     obj.contact_edit.active = min(obj.contact_edit.active, max(len(entries) - 1, 0))
+    redraw()
+
+
+def redraw(area_type: str | None = None) -> None:
+    """Redraw every editor (or every one of ``area_type``): Blender redraws a panel by itself when a
+    property it shows is set, not when a script rebuilds a collection (the patch list) or poses bones,
+    so the list would lag until the mouse passed over it."""
+    for window in bpy.context.window_manager.windows:
+        for area in window.screen.areas:
+            if area_type is None or area.type == area_type:
+                area.tag_redraw()
 
 
 def active_patch_name(obj: bpy.types.Object) -> str | None:

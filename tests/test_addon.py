@@ -3,6 +3,7 @@ headless with explicit properties, as batch scripts use them."""
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from contact_edit_addon import build
@@ -171,7 +172,7 @@ def test_brush_strokes_become_points_inside_faces(tmp_path):
         hits = []
         for x in np.linspace(-0.5, 0.5, 30):
             ok, location, normal, polygon = hand.ray_cast((x, 0.5, 1.0), (0, 0, -1))
-            hits.append({"name": "", "location": location[:], "polygon": polygon})
+            hits.append({"name": "", "location": location[:], "polygon": polygon, "radius": 0.0})
         bpy.ops.contact_edit.paint(name="stroke", source="STROKE", stroke=hits)
         patch = store.load(hand)["stroke"]
         X = patch.positions()
@@ -184,6 +185,67 @@ def test_brush_strokes_become_points_inside_faces(tmp_path):
     assert out["n"] == 30
     assert out["y"] == pytest.approx([0.5, 0.5], abs=1e-12)
     assert out["x"] == pytest.approx([-0.5, 0.5], abs=1e-12)
+
+
+def test_the_area_brush_paints_adds_and_takes_away_at_the_scene_density(tmp_path):
+    """Dabs of 10 cm along a line paint the stadium they cover at the density (1 point per cm² here);
+    Shift adds, Ctrl takes away, a transferred patch follows its hand patch, a view from behind paints
+    nothing, and the object's copy refuses to be painted on directly."""
+    out = run_blender(
+        """
+        scene.contact_edit.brush_density = 1.0
+        def dabs(y, x0=-0.5, x1=0.5, radius=0.1, n=41):
+            items = []
+            for x in np.linspace(x0, x1, n):
+                ok, location, normal, polygon = hand.ray_cast((x, y, 1.0), (0, 0, -1))
+                items.append({"name": "", "location": location[:], "polygon": polygon, "radius": radius})
+            return items
+        bpy.ops.contact_edit.paint(name="band", source="STROKE", stroke=dabs(0.2), eye=(0, 0, 2))
+        X = store.load(hand)["band"].positions()
+        to_line = np.hypot(np.maximum(np.abs(X[:, 0]) - 0.5, 0), X[:, 1] - 0.2)
+        painted = len(X)
+        bpy.ops.contact_edit.transfer(patch="band", location=(0, -0.3, 4.0), direction=(1, 0, 0))
+        ball_axis = store.load(ball)["band"].axis.points.positions(store.load(ball).mesh)
+        bpy.ops.contact_edit.paint(source="STROKE", mode="ADD", stroke=dabs(0.45, radius=0.05))
+        added = len(store.load(hand)["band"])
+        on_ball_added = len(store.load(ball)["band"])
+        before = store.load(hand)["band"].positions()
+        eraser = dabs(0.2, -0.1, 0.1, 0.05, 5)
+        bpy.ops.contact_edit.paint(source="STROKE", mode="SUBTRACT", stroke=eraser)
+        kept = store.load(hand)["band"]
+        centres = np.array([d["location"] for d in eraser])
+        reach = np.linalg.norm(before[:, None] - centres[None], axis=2).min(axis=1)
+        on_ball = store.load(ball)["band"]
+        messages = []
+        for call in (
+            lambda: bpy.ops.contact_edit.paint(source="STROKE", stroke=dabs(-0.4), eye=(0, 0, -2)),
+            lambda: (setattr(bpy.context.view_layer.objects, "active", ball),
+                     bpy.ops.contact_edit.paint(source="STROKE", mode="ADD", stroke=[
+                         {"name": "", "location": (0, -0.3, 4.0), "polygon": 0, "radius": 0.2}])),
+        ):
+            try:
+                call()
+            except RuntimeError as err:
+                messages.append(str(err))
+        result(dict(painted=painted, far=float(to_line.max()), added=added, on_ball_added=on_ball_added,
+                    kept=len(kept), expected=int((reach > 0.05).sum()), on_ball=len(on_ball),
+                    kept_exactly=bool(np.array_equal(kept.positions(), before[reach > 0.05])),
+                    axis_kept=float(np.abs(on_ball.axis.points.positions(on_ball.mesh) - ball_axis).max()),
+                    messages=messages, names=[e.name for e in hand.contact_edit.patches]))
+        """,
+        tmp_path,
+        setup=SETUP,
+    )
+    stadium = 1.0 * 0.2 + np.pi * 0.1**2  # m², at 10,000 points per m²
+    assert out["painted"] == pytest.approx(stadium * 1e4, rel=0.04)
+    assert out["far"] <= 0.1 + 1e-9
+    assert out["added"] == pytest.approx(out["painted"] + (1.0 * 0.1 + np.pi * 0.05**2) * 1e4, rel=0.05)
+    assert out["on_ball_added"] == out["added"]  # the transfer follows, point for point
+    assert out["kept"] == out["expected"] < out["added"] and out["kept_exactly"]  # the eraser's balls
+    assert out["on_ball"] == out["kept"] and out["axis_kept"] == 0.0  # it keeps its place
+    assert "facing the view" in out["messages"][0]
+    assert "transfer of the hand's patch 'band'" in out["messages"][1]
+    assert out["names"] == ["band"]
 
 
 def test_contacts_follow_a_changed_mesh_by_position(tmp_path):

@@ -51,8 +51,9 @@ def demo(tmp_path_factory) -> tuple[Path, str]:
 
 def test_demo_paints_transfers_solves_keys_saves_and_renders(demo, tmp_path):
     out, printed = demo
-    assert "patches transferred onto the mug" in printed and "(converged)" in printed
-    mean = float(re.search(r"mean distance ([0-9.e-]+)", printed).group(1))
+    assert "patches transferred onto the mug" in printed and ", converged" in printed
+    value, unit = re.search(r"mean distance ([0-9.]+) (µm|mm|cm|m)\b", printed).groups()
+    mean = float(value) * {"µm": 1e-6, "mm": 1e-3, "cm": 1e-2, "m": 1.0}[unit]
     assert 0 < mean < 0.01  # metres, on a hand 19 cm long
     with open(out / "demo.png", "rb") as f:
         header = f.read(24)

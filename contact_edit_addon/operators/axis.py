@@ -8,10 +8,10 @@ import bpy
 from geodesics import Axis, farthest_pair_axis, medial_axis
 
 from .. import store
-from .common import guarded, mesh_object, nearest_point, poll_patch, ray_hit
+from .common import HotkeyTool, checked, guarded, mesh_object, nearest_point, need_patch, ray_hit
 
 
-class CONTACT_EDIT_OT_axis(bpy.types.Operator):
+class CONTACT_EDIT_OT_axis(HotkeyTool, bpy.types.Operator):
     """Set the axis of a contact patch (pick start and end on the surface, or use a default)"""
 
     bl_idname = "contact_edit.axis"
@@ -32,10 +32,9 @@ class CONTACT_EDIT_OT_axis(bpy.types.Operator):
     start: bpy.props.FloatVectorProperty(name="Start", size=3, subtype="TRANSLATION")
     end: bpy.props.FloatVectorProperty(name="End", size=3, subtype="TRANSLATION")
 
-    @classmethod
-    def poll(cls, context):
-        return poll_patch(cls, context)
+    why_not = staticmethod(need_patch)
 
+    @checked
     def invoke(self, context, event):
         if self.method != "POINTS" or context.area is None or context.area.type != "VIEW_3D":
             return self.execute(context)
@@ -62,6 +61,7 @@ class CONTACT_EDIT_OT_axis(bpy.types.Operator):
                 return self.execute(context)
         return {"RUNNING_MODAL"}
 
+    @checked
     def execute(self, context):
         return guarded(self, lambda: self._set_axis(context))
 

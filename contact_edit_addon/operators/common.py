@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 
 import bpy
@@ -83,26 +84,79 @@ def ray_hit(context, event, obj):
     return np.array(obj.matrix_world @ location), polygon
 
 
-def poll_mesh(cls, context) -> bool:
+def need_mesh(context) -> str | None:
+    """Why a tool that works on the active mesh cannot run now (None: it can)."""
     obj = context.active_object
     if obj is None or obj.type != "MESH":
-        cls.poll_message_set("Select a mesh object (the hand or the object) first")
-        return False
-    return True
+        return "Select a mesh object (the hand or the object) first"
+    return None
 
 
-def poll_hand_and_object(cls, context) -> bool:
+def need_hand_and_object(context) -> str | None:
     settings = context.scene.contact_edit
     if settings.hand is None or settings.target is None:
-        cls.poll_message_set("Choose the hand and the object in the Contact tab first")
+        return "Choose the hand and the object in the Contact tab first (or add the example)"
+    return None
+
+
+def need_patch(context) -> str | None:
+    obj = context.active_object
+    if need_mesh(context) is None and not obj.contact_edit.patches:
+        return f"'{obj.name}' has no contact patches yet: paint one first"
+    return need_mesh(context)
+
+
+def poll_with(cls, reason: str | None) -> bool:
+    """A poll for buttons and menus: False, with the reason as the disabled button's tooltip."""
+    if reason is not None:
+        cls.poll_message_set(reason)
         return False
     return True
+
+
+def poll_mesh(cls, context) -> bool:
+    return poll_with(cls, need_mesh(context))
 
 
 def poll_patch(cls, context) -> bool:
-    if not poll_mesh(cls, context):
-        return False
-    if not context.active_object.contact_edit.patches:
-        cls.poll_message_set(f"'{context.active_object.name}' has no contact patches yet: paint one first")
-        return False
-    return True
+    return poll_with(cls, need_patch(context))
+
+
+class HotkeyTool:
+    """For operators that a hotkey starts. When a hotkey's operator cannot run (its poll fails) Blender
+    does nothing at all, silently; these leave poll open instead and report why they cannot run, from
+    ``why_not(context)``, in the invoke and execute methods decorated with :func:`checked`."""
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene is not None
+
+    @staticmethod
+    def why_not(context) -> str | None:
+        return None
+
+
+def checked(method):
+    """Report the operator's ``why_not`` as an error and cancel, instead of running ``method`` (an
+    ``execute(self, context)`` or ``invoke(self, context, event)``: Blender checks the argument count)."""
+
+    def refused(self, context) -> set | None:
+        reason = self.why_not(context)
+        if reason is None:
+            return None
+        self.report({"ERROR"}, reason)
+        return {"CANCELLED"}
+
+    if method.__code__.co_argcount == 3:
+
+        @functools.wraps(method)
+        def invoke(self, context, event):
+            return refused(self, context) or method(self, context, event)
+
+        return invoke
+
+    @functools.wraps(method)
+    def execute(self, context):
+        return refused(self, context) or method(self, context)
+
+    return execute

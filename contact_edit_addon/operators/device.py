@@ -28,6 +28,7 @@ from tangible import (
 )
 from tangible.assembly import instructions_text
 
+from .. import store
 from ..bridge import BridgeError
 from ..bridge.device import ArmatureRig, ScalarTarget, action_sample_poses, scalar_target
 from ..device_properties import CHANNEL_ITEMS, TARGETS
@@ -42,7 +43,7 @@ from ..device_session import (
     sessions,
     wait_for_device,
 )
-from .common import USER_ERRORS
+from .common import USER_ERRORS, HotkeyTool, checked
 
 #: Errors reported to the user instead of failing.
 DEVICE_ERRORS = (*USER_ERRORS, TangibleError)
@@ -74,13 +75,6 @@ def report_errors(operator: bpy.types.Operator, action) -> set:
         message = str(err)
         operator.report({"ERROR"}, message[:1].upper() + message[1:])
         return {"CANCELLED"}
-
-
-def redraw_views(context) -> None:
-    if context.screen is not None:
-        for area in context.screen.areas:
-            if area.type == "VIEW_3D":
-                area.tag_redraw()
 
 
 class CONTACT_EDIT_OT_device_connect(bpy.types.Operator):
@@ -133,7 +127,7 @@ class CONTACT_EDIT_OT_device_connect(bpy.types.Operator):
             return {"CANCELLED"}
         self._armature = device_armature(context).name
         self._session = sessions[self._armature]
-        self._reported = ""
+        self._reported = context.scene.contact_edit_device.status  # what execute reported
         rate = context.scene.contact_edit_device.rate
         self._timer = context.window_manager.event_timer_add(1.0 / rate, window=context.window)
         context.window_manager.modal_handler_add(self)
@@ -151,17 +145,15 @@ class CONTACT_EDIT_OT_device_connect(bpy.types.Operator):
             self._session.stop(restore=False)
             self.report({"ERROR"}, f"Stopped driving: {err}")
             return self._end(context)
-        if level == "WARNING" and message != self._reported:
-            self.report({"WARNING"}, message)
-        elif level == "INFO" and self._reported:
-            self.report({"INFO"}, "The device drives the armature again")
-        self._reported = message if level == "WARNING" else ""
-        redraw_views(context)
+        if message != self._reported:  # the status bar says what the panel says
+            self.report({level}, message)
+            self._reported = message
+        store.redraw("VIEW_3D")
         return {"PASS_THROUGH"}
 
     def _end(self, context) -> set:
         context.window_manager.event_timer_remove(self._timer)
-        redraw_views(context)
+        store.redraw()
         return {"CANCELLED"}
 
 
@@ -212,7 +204,7 @@ class CONTACT_EDIT_OT_device_stop(bpy.types.Operator):
         kept = "kept the device's pose" if self.keep_pose else "the pose from before connecting is back"
         context.scene.contact_edit_device.status = f"Stopped: {kept}"
         self.report({"INFO"}, f"Disconnected the device from '{session.armature}'; {kept}")
-        redraw_views(context)
+        store.redraw()
         return {"FINISHED"}
 
 
@@ -250,17 +242,23 @@ class CONTACT_EDIT_OT_device_calibrate(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class CONTACT_EDIT_OT_device_key(bpy.types.Operator):
+class CONTACT_EDIT_OT_device_key(HotkeyTool, bpy.types.Operator):
     """Key what the device poses (bones and numbers) at the current frame"""
 
     bl_idname = "contact_edit.device_key"
     bl_label = "Key Device Pose"
     bl_options = {"REGISTER", "UNDO"}
 
-    @classmethod
-    def poll(cls, context):
-        return poll_live(cls, context)
+    @staticmethod
+    def why_not(context) -> str | None:
+        armature = device_armature(context)
+        if armature is None:
+            return "No device is connected: choose an armature and connect in the Puppet Device panel"
+        if live_session(context) is None:
+            return f"No device is driving '{armature.name}': connect one in the Puppet Device panel first"
+        return None
 
+    @checked
     def execute(self, context):
         return report_errors(self, lambda: self._key(context))
 

@@ -12,10 +12,10 @@ import math
 import bpy
 
 from .. import overlays, store
-from .common import USER_ERRORS, guarded, mesh_object, nearest_point, poll_patch, ray_hit
+from .common import USER_ERRORS, HotkeyTool, checked, guarded, mesh_object, nearest_point, need_patch, ray_hit
 
 
-class _PatchEdit:
+class _PatchEdit(HotkeyTool):
     """Shared plumbing: which patch, the modal loop, preview and commit. Each tool defines
     ``edited(contacts, name)`` (the edit by its properties) and ``drag(context, event)``."""
 
@@ -24,9 +24,7 @@ class _PatchEdit:
     patch: bpy.props.StringProperty(name="Patch", description="Patch name (default: the active patch)")
     object_name: bpy.props.StringProperty(name="Object", description="The patch's object (default: active)")
 
-    @classmethod
-    def poll(cls, context):
-        return poll_patch(cls, context)
+    why_not = staticmethod(need_patch)
 
     def _target(self, context):
         obj = mesh_object(context, self.object_name or None)
@@ -36,6 +34,7 @@ class _PatchEdit:
         contacts[name]  # raises a clear error for an unknown name
         return obj, contacts, name
 
+    @checked
     def execute(self, context):
         def run():
             obj, contacts, name = self._target(context)
@@ -44,6 +43,7 @@ class _PatchEdit:
 
         return guarded(self, run)
 
+    @checked
     def invoke(self, context, event):
         if context.area is None or context.area.type != "VIEW_3D":
             return self.execute(context)
@@ -72,7 +72,7 @@ class _PatchEdit:
 
     def _finish(self, context, commit: bool):
         context.area.header_text_set(None)
-        overlays.preview(None, None)
+        overlays.preview(self._obj)
         context.area.tag_redraw()
         if not commit or self._result is None:
             return {"CANCELLED"}
@@ -140,6 +140,7 @@ class CONTACT_EDIT_OT_bend(_PatchEdit, bpy.types.Operator):
     index: bpy.props.IntProperty(name="Axis point", min=1, default=1, description="Where the axis bends")
     angle: bpy.props.FloatProperty(name="Angle", subtype="ANGLE")
 
+    @checked
     def invoke(self, context, event):
         obj = mesh_object(context, self.object_name or None)
         try:

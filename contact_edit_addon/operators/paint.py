@@ -1,23 +1,49 @@
-"""Paint a contact patch: from the selected vertices, or from a brush stroke cast onto the surface."""
+"""Paint a contact patch: from the selected vertices, or with the area brush (Contact Edit §4.2).
+
+The brush is a circle of a radius in screen pixels (F resizes it, as in Blender's own brushes) that
+paints points inside faces at the scene's density (points per cm² of surface), wherever it passes over
+the surface facing the view (:mod:`geodesics.brush`). A plain stroke makes a new patch; Shift adds to
+the active patch and Ctrl takes away from it, keeping its axis. Adding to or taking from a hand patch
+that was transferred carries the change over to its counterpart on the object, which keeps its place.
+
+From a script, ``stroke`` lists the brush's dabs: a world-space ``location`` on the surface, the
+``polygon`` it is on and the ``radius`` of the ball (world units; 0 paints the location itself, one
+point); ``eye`` (a perspective view) or ``view_direction`` (an orthographic one) say where the viewer is,
+so that only surface facing it is painted (both zero: all of it).
+"""
 
 from __future__ import annotations
 
 import bpy
 import numpy as np
+from bpy_extras import view3d_utils
 
-from geodesics import ContactPatch, farthest_pair_axis, medial_axis
+from geodesics import ContactError, ContactPatch, SurfacePoints, farthest_pair_axis, medial_axis
+from geodesics.brush import Dab, erase, paint
 
-from .. import bridge, store
-from .common import guarded, mesh_object, poll_mesh, ray_hit, unique_name
+from .. import bridge, overlays, store
+from .common import HotkeyTool, checked, guarded, mesh_object, need_mesh, unique_name
+
+#: Brush dabs per radius of stroke length.
+DABS_PER_RADIUS = 3.0
+#: Square centimetres per square metre (the density is set per cm², the scene is in metres).
+CM2_PER_M2 = 1e4
+#: Events that move the view; they pass through to Blender while the brush waits for a stroke.
+NAVIGATION = {
+    "MIDDLEMOUSE", "WHEELUPMOUSE", "WHEELDOWNMOUSE", "TRACKPADPAN", "TRACKPADZOOM", "MOUSEROTATE",
+    "NDOF_MOTION", "NUMPAD_1", "NUMPAD_2", "NUMPAD_3", "NUMPAD_4", "NUMPAD_5", "NUMPAD_6", "NUMPAD_7",
+    "NUMPAD_8", "NUMPAD_9", "NUMPAD_PERIOD",
+}  # fmt: skip
+SUBTRACT_COLOR = (0.95, 0.2, 0.2, 1.0)
 
 
 class CONTACT_EDIT_PG_stroke_point(bpy.types.PropertyGroup):
-    """A brush sample: where a ray hit the surface (world space) and the polygon it hit. From a script,
-    pass ``stroke=[{"name": "", "location": (x, y, z), "polygon": i}, ...]`` (as for Blender's own paint
-    strokes, each item needs a "name")."""
+    """A brush dab. From a script, pass ``stroke=[{"name": "", "location": (x, y, z), "polygon": i,
+    "radius": r}, ...]`` (as for Blender's own paint strokes, each item needs every key)."""
 
-    location: bpy.props.FloatVectorProperty(name="Location", size=3)
+    location: bpy.props.FloatVectorProperty(name="Location", size=3, description="World space")
     polygon: bpy.props.IntProperty(name="Polygon", min=0)
+    radius: bpy.props.FloatProperty(name="Radius", min=0.0, description="World units; 0: just this point")
 
 
 AXIS_METHODS = [
@@ -25,10 +51,36 @@ AXIS_METHODS = [
     ("FARTHEST", "Farthest points", "The geodesic between the patch's two farthest points"),
     ("MEDIAL", "Medial axis", "The patch's smoothed medial axis"),
 ]
+MODES = [
+    ("NEW", "New patch", "Make a new patch of what the stroke covers"),
+    ("ADD", "Add", "Add what the stroke covers to the active patch (Shift)"),
+    ("SUBTRACT", "Subtract", "Take what the stroke covers away from the active patch (Ctrl)"),
+]
 
 
-class CONTACT_EDIT_OT_paint(bpy.types.Operator):
-    """Create a contact patch from the selected vertices or from a brush stroke on the surface"""
+def shown_shape(obj):
+    """The shape the viewport shows for ``obj`` (posed, if an armature poses it) as a TriMesh with the
+    faces of its rest shape, so that points found on it are points of the rest shape too."""
+    try:
+        return bridge.trimesh(obj, deformed=True)
+    except bridge.BridgeError:
+        return bridge.trimesh(obj)
+
+
+def object_scale(obj) -> float:
+    """The object's uniform scale factor (world length per object-space length)."""
+    return float(abs(np.linalg.det(np.array(obj.matrix_world)[:3, :3])) ** (1.0 / 3.0))
+
+
+def local_density(context, obj) -> float:
+    """The scene's brush density (points per cm² of world surface) per object-space unit area."""
+    metres = context.scene.unit_settings.scale_length or 1.0
+    return context.scene.contact_edit.brush_density * CM2_PER_M2 * (metres * object_scale(obj)) ** 2
+
+
+class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
+    """Create a contact patch from the selected vertices, or paint one with the area brush (Shift adds to
+    the active patch, Ctrl takes away from it, F resizes the brush)"""
 
     bl_idname = "contact_edit.paint"
     bl_label = "Paint Contact"
@@ -39,46 +91,175 @@ class CONTACT_EDIT_OT_paint(bpy.types.Operator):
         name="From",
         items=[
             ("SELECTION", "Selection", "The selected vertices of the object"),
-            ("STROKE", "Stroke", "Brush samples cast onto the surface (points inside faces)"),
+            ("STROKE", "Stroke", "A brush stroke over the surface (points inside faces)"),
         ],
         default="SELECTION",
     )
+    mode: bpy.props.EnumProperty(name="Mode", items=MODES, default="NEW", options={"SKIP_SAVE"})
     stroke: bpy.props.CollectionProperty(type=CONTACT_EDIT_PG_stroke_point, options={"SKIP_SAVE"})
+    eye: bpy.props.FloatVectorProperty(
+        name="Eye", size=3, description="The viewer's place (perspective)", options={"SKIP_SAVE"}
+    )
+    view_direction: bpy.props.FloatVectorProperty(
+        name="View direction",
+        size=3,
+        description="The direction the viewer looks in (orthographic)",
+        options={"SKIP_SAVE"},
+    )
     object_name: bpy.props.StringProperty(name="Object", description="Paint on this object (default: active)")
     axis_method: bpy.props.EnumProperty(name="Axis", items=AXIS_METHODS, default="SCENE")
 
-    @classmethod
-    def poll(cls, context):
-        return poll_mesh(cls, context)
+    why_not = staticmethod(need_mesh)
 
+    # ------------------------------------------------------------------ the brush, interactively
+
+    @checked
     def invoke(self, context, event):
         if self.source == "SELECTION" or context.area is None or context.area.type != "VIEW_3D":
             return self.execute(context)
         self._object = mesh_object(context, self.object_name or None)
         self.stroke.clear()
         self._painting = False
+        self._last = None
+        self._found: list = []
+        self._mesh = None
+        context.window.cursor_modal_set("CROSSHAIR")
         context.window_manager.modal_handler_add(self)
-        context.area.header_text_set("Paint contact: drag over the surface, release to finish · Esc cancels")
+        self._show_brush(context, event)
+        context.area.header_text_set(
+            f"Paint on '{self._object.name}': drag · Shift: add to the active patch · Ctrl: take away · "
+            "F: radius · Esc: cancel"
+        )
         return {"RUNNING_MODAL"}
 
     def modal(self, context, event):
-        if event.type in {"ESC", "RIGHTMOUSE"}:
-            context.area.header_text_set(None)
-            return {"CANCELLED"}
-        if event.type == "LEFTMOUSE" and event.value == "PRESS":
+        if event.type in {"ESC", "RIGHTMOUSE"} and event.value == "PRESS":
+            return self._end(context, {"CANCELLED"})
+        if not self._painting:
+            if event.type in NAVIGATION:
+                return {"PASS_THROUGH"}
+            if event.type == "F" and event.value == "PRESS":
+                bpy.ops.wm.radial_control(
+                    "INVOKE_DEFAULT", data_path_primary="scene.contact_edit.brush_radius"
+                )
+                return {"RUNNING_MODAL"}
+        if event.type == "LEFTMOUSE" and event.value == "PRESS" and not self._painting:
             self._painting = True
-        if self._painting and event.type in {"MOUSEMOVE", "LEFTMOUSE", "INBETWEEN_MOUSEMOVE"}:
-            hit = ray_hit(context, event, self._object)
-            if hit is not None:
-                sample = self.stroke.add()
-                sample.location, sample.polygon = hit[0], hit[1]
-        if event.type == "LEFTMOUSE" and event.value == "RELEASE":
-            context.area.header_text_set(None)
+            self.mode = "SUBTRACT" if event.ctrl else "ADD" if event.shift else "NEW"
+            if self.mode != "NEW" and not self._object.contact_edit.patches:
+                self.report({"ERROR"}, f"'{self._object.name}' has no patch to add to or take from yet")
+                return self._end(context, {"CANCELLED"})
+            self._dab(context, event)
+        elif event.type in {"MOUSEMOVE", "INBETWEEN_MOUSEMOVE"} and self._painting:
+            self._dab(context, event)
+        elif event.type == "LEFTMOUSE" and event.value == "RELEASE" and self._painting:
+            self._end(context, set())
             return self.execute(context)
-        return {"RUNNING_MODAL"} if self._painting or event.type != "LEFTMOUSE" else {"PASS_THROUGH"}
+        self._show_brush(context, event)
+        return {"RUNNING_MODAL"}
 
+    def _show_brush(self, context, event) -> None:
+        radius = context.scene.contact_edit.brush_radius
+        held = self.mode if self._painting else "SUBTRACT" if event.ctrl else "ADD" if event.shift else "NEW"
+        color = SUBTRACT_COLOR if held == "SUBTRACT" else (1.0, 1.0, 1.0, 1.0)
+        centre = (event.mouse_region_x, event.mouse_region_y)
+        overlays.brush(overlays.Brush(context.region, centre, radius, color))
+        context.area.tag_redraw()
+
+    def _dab(self, context, event) -> None:
+        """Dabs from the last one to the mouse, a third of the radius apart, each where its ray meets the
+        surface; the overlay shows what the stroke covers so far."""
+        region, rv3d = context.region, context.region_data
+        here = np.array([event.mouse_region_x, event.mouse_region_y], float)
+        radius = context.scene.contact_edit.brush_radius
+        if self._last is None:
+            spots = [here]
+        else:
+            steps = int(np.linalg.norm(here - self._last) * DABS_PER_RADIUS / max(radius, 1))
+            if steps == 0:
+                return
+            spots = [self._last + (here - self._last) * (i + 1) / steps for i in range(steps)]
+        self._last = here
+        view = (np.array(rv3d.perspective_matrix), float(region.width))
+        if rv3d.is_perspective:
+            self.eye = rv3d.view_matrix.inverted().translation
+        else:
+            self.view_direction = -np.array(rv3d.view_matrix.inverted().col[2][:3])
+        inverse = self._object.matrix_world.inverted()
+        added = []
+        for spot in spots:
+            origin = view3d_utils.region_2d_to_origin_3d(region, rv3d, spot)
+            ray = view3d_utils.region_2d_to_vector_3d(region, rv3d, spot)
+            hit, location, _normal, polygon = self._object.ray_cast(
+                inverse @ origin, (inverse.to_3x3() @ ray).normalized()
+            )
+            if not hit:
+                continue
+            world = np.array(self._object.matrix_world @ location)
+            item = self.stroke.add()
+            item.location, item.polygon = world, polygon
+            item.radius = float(overlays.pixel_size(world[None], view)[0] * radius)
+            added.append(item)
+        if added:
+            self._preview(context, added)
+
+    def _preview(self, context, items) -> None:
+        obj = self._object
+        if self._mesh is None:
+            self._mesh = shown_shape(obj)
+        dabs, _ = self._dabs(obj, self._mesh, items)
+        density = local_density(context, obj)
+        if self.mode == "SUBTRACT":
+            name = store.active_patch_name(obj)
+            patch = store.load(obj)[name]
+            keep = erase(self._mesh, patch.points, self._dabs(obj, self._mesh, self.stroke)[0])
+            color = next(tuple(e.color) for e in obj.contact_edit.patches if e.name == name)
+            overlays.preview(obj, hidden={name}, loose=[(patch.points[np.flatnonzero(keep)], color)])
+        else:
+            self._found.append(paint(self._mesh, dabs, density)[0])
+            color = (
+                next(
+                    tuple(e.color) for e in obj.contact_edit.patches if e.name == store.active_patch_name(obj)
+                )
+                if self.mode == "ADD"
+                else store.PALETTE[len(obj.contact_edit.patches) % len(store.PALETTE)]
+            )
+            overlays.preview(obj, loose=[(points, color) for points in self._found])
+        context.area.tag_redraw()
+
+    def _end(self, context, status: set) -> set:
+        overlays.brush(None)
+        overlays.preview(self._object)
+        context.window.cursor_modal_restore()
+        context.area.header_text_set(None)
+        context.area.tag_redraw()
+        return status
+
+    # ------------------------------------------------------------------ making the patch
+
+    @checked
     def execute(self, context):
         return guarded(self, lambda: self._paint(context))
+
+    def _dabs(self, obj, mesh, items) -> tuple[list[Dab], SurfacePoints]:
+        """The stroke as brush dabs on ``mesh`` (the shown shape, in object space), and the points of
+        its zero-radius items."""
+        items = list(items)
+        if not items:
+            return [], SurfacePoints(np.empty(0, np.int64), np.empty((0, 3)))
+        hits = bridge.world_to_object(obj, [i.location for i in items])
+        at = bridge.points_from_hits(mesh, [i.polygon for i in items], hits)
+        scale = object_scale(obj)
+        eye = tuple(bridge.world_to_object(obj, self.eye)[0]) if any(self.eye) else None
+        M = np.linalg.inv(np.array(obj.matrix_world)[:3, :3])
+        direction = tuple(M @ np.array(self.view_direction)) if any(self.view_direction) and not eye else None
+        dabs = [
+            Dab(int(at.faces[k]), tuple(hits[k]), item.radius / scale, eye, direction)
+            for k, item in enumerate(items)
+            if item.radius > 0
+        ]
+        points = at[np.flatnonzero([i.radius <= 0 for i in items])]
+        return dabs, points
 
     def _paint(self, context):
         obj = mesh_object(context, self.object_name or None)
@@ -88,17 +269,34 @@ class CONTACT_EDIT_OT_paint(bpy.types.Operator):
         deformed = settings.deformed and obj == settings.hand
         mesh = bridge.trimesh(obj, deformed=deformed)
         if self.source == "SELECTION":
-            points = bridge.points_from_vertices(obj, mesh, bridge.selected_vertices(obj))
-        else:
-            if not self.stroke:
-                self.report({"ERROR"}, "The stroke missed the surface: paint over the object")
-                return {"CANCELLED"}
-            hits = np.array([s.location for s in self.stroke])
-            polygons = np.array([s.polygon for s in self.stroke])
-            points = bridge.points_from_hits(mesh, polygons, bridge.world_to_object(obj, hits))
+            selected = bridge.points_from_vertices(obj, mesh, bridge.selected_vertices(obj))
+            return self._new(context, obj, mesh, selected)
+        if self.mode != "NEW":
+            self._active(context, obj)  # refuses a transferred patch before any work
+        shape = shown_shape(obj)
+        dabs, single = self._dabs(obj, shape, self.stroke)
+        if not dabs and not len(single):
+            self.report({"ERROR"}, f"The stroke missed '{obj.name}': paint over its surface")
+            return {"CANCELLED"}
+        if self.mode == "SUBTRACT":
+            return self._subtract(context, obj, shape, dabs)
+        painted = SurfacePoints.concatenate([paint(shape, dabs, local_density(context, obj))[0], single])
+        if not len(painted):
+            self.report(
+                {"ERROR"},
+                f"The stroke covered no surface of '{obj.name}' facing the view at "
+                f"{settings.brush_density:g} points per cm²: paint more slowly or raise the density",
+            )
+            return {"CANCELLED"}
+        if self.mode == "ADD":
+            return self._add(context, obj, painted)
+        return self._new(context, obj, mesh, painted)
+
+    def _new(self, context, obj, mesh, points):
+        settings = context.scene.contact_edit
         method = settings.axis_method if self.axis_method == "SCENE" else self.axis_method
         axis = (medial_axis if method == "MEDIAL" else farthest_pair_axis)(mesh, points)
-        contacts = store.load(obj, deformed)
+        contacts = store.load(obj, settings.deformed and obj == settings.hand)
         name = unique_name(contacts, self.name or "contact")
         store.save(obj, contacts.add(name, ContactPatch(mesh, points, axis)))
         obj.contact_edit.active = len(obj.contact_edit.patches) - 1
@@ -106,6 +304,58 @@ class CONTACT_EDIT_OT_paint(bpy.types.Operator):
             {"INFO"}, f"Painted '{name}' on '{obj.name}': {len(points)} points, axis of {len(axis)} points"
         )
         return {"FINISHED"}
+
+    def _add(self, context, obj, points):
+        contacts, name = self._active(context, obj)
+        patch = contacts[name]
+        grown = ContactPatch(contacts.mesh, SurfacePoints.concatenate([patch.points, points]), patch.axis)
+        carried = self._carry(context, obj, contacts, name, lambda other: grown.mirrored_onto(other.axis))
+        store.save(obj, contacts.replace(name, grown))
+        self.report({"INFO"}, f"Added {len(points)} points to '{name}' (now {len(grown)}){carried}")
+        return {"FINISHED"}
+
+    def _subtract(self, context, obj, shape, dabs):
+        contacts, name = self._active(context, obj)
+        patch = contacts[name]
+        keep = erase(shape, patch.points, dabs)
+        removed = int((~keep).sum())
+        if removed == 0:
+            self.report({"WARNING"}, f"The stroke covered none of the points of '{name}'; nothing changed")
+            return {"CANCELLED"}
+        if removed == len(patch):
+            raise ContactError(f"that would take every point of '{name}'; remove the patch instead")
+        carried = self._carry(context, obj, contacts, name, lambda other: other.subset(keep))
+        store.save(obj, contacts.replace(name, patch.subset(keep)))
+        self.report({"INFO"}, f"Took {removed} points from '{name}' (now {int(keep.sum())}){carried}")
+        return {"FINISHED"}
+
+    def _active(self, context, obj):
+        settings = context.scene.contact_edit
+        contacts = store.load(obj, settings.deformed and obj == settings.hand)
+        name = store.active_patch_name(obj)
+        if name is None:
+            raise ContactError(f"'{obj.name}' has no patch to add to or take from yet")
+        if obj == settings.target and settings.hand is not None and name in contacts.pairs:
+            raise ContactError(
+                f"'{name}' is the transfer of the hand's patch '{contacts.pairs[name]}': paint on the hand "
+                "patch and the change is carried over here"
+            )
+        return contacts, name
+
+    @staticmethod
+    def _carry(context, obj, contacts, name, change) -> str:
+        """Carry a change of the hand patch ``name`` over to its transfer on the object (which keeps its
+        place); returns what to add to the report."""
+        settings = context.scene.contact_edit
+        counterpart = contacts.pairs.get(name)
+        target = settings.target
+        if obj != settings.hand or counterpart is None or target is None:
+            return ""
+        others = store.load(target)
+        if counterpart not in others:
+            return ""
+        store.save(target, others.replace(counterpart, change(others[counterpart])))
+        return f"; its transfer '{counterpart}' on '{target.name}' follows"
 
 
 classes = (CONTACT_EDIT_PG_stroke_point, CONTACT_EDIT_OT_paint)

@@ -2,7 +2,8 @@
 
 Interactively, the solve runs in a worker thread (it is pure numpy; Blender data is only touched here,
 on the main thread) and the viewport shows each better pose as it is found, as the user study asked.
-Esc stops and keeps the best pose so far; right-click cancels and restores the pose it started from.
+Esc stops and keeps the best pose so far; right-click cancels and puts back the pose it started from.
+Either way the header, the status bar and the panel say which happened.
 """
 
 from __future__ import annotations
@@ -11,26 +12,21 @@ import threading
 
 import bpy
 
-from .. import bridge, posing, preferences
-from .common import USER_ERRORS, guarded, poll_hand_and_object
+from .. import bridge, posing, preferences, store
+from .common import USER_ERRORS, HotkeyTool, checked, guarded, need_hand_and_object
 
 #: Viewport refreshes per second while solving.
-REDRAW_RATE = 20.0
+REDRAW_RATE = 30.0
 
 
-def poll_paired(cls, context) -> bool:
+def need_pairs(context) -> str | None:
     settings = context.scene.contact_edit
-    if not poll_hand_and_object(cls, context):
-        return False
-    if not any(entry.pair for entry in settings.hand.contact_edit.patches):
-        cls.poll_message_set(
-            f"No patch of '{settings.hand.name}' is paired yet: transfer one onto the object"
-        )
-        return False
-    return True
+    if need_hand_and_object(context) is None and not any(e.pair for e in settings.hand.contact_edit.patches):
+        return f"No patch of '{settings.hand.name}' is paired yet: transfer one onto the object"
+    return need_hand_and_object(context)
 
 
-class CONTACT_EDIT_OT_solve(bpy.types.Operator):
+class CONTACT_EDIT_OT_solve(HotkeyTool, bpy.types.Operator):
     """Pose the hand's armature so that its contact patches meet their pairs on the object"""
 
     bl_idname = "contact_edit.solve"
@@ -43,10 +39,9 @@ class CONTACT_EDIT_OT_solve(bpy.types.Operator):
         name="Evaluations", default=2000, min=1, description="Stop after this many energy evaluations"
     )
 
-    @classmethod
-    def poll(cls, context):
-        return poll_paired(cls, context)
+    why_not = staticmethod(need_pairs)
 
+    @checked
     def execute(self, context):
         return guarded(self, lambda: self._solve(context))
 
@@ -56,13 +51,14 @@ class CONTACT_EDIT_OT_solve(bpy.types.Operator):
         self._finish(context, problem, result)
         return {"FINISHED"}
 
-    def _finish(self, context, problem, result) -> None:
+    def _finish(self, context, problem, result, outcome: str | None = None) -> None:
         problem.apply(result.theta, context.scene.frame_current if self.keyframe else None)
-        context.scene.contact_edit.last_solve = posing.summary(problem, result)
+        context.scene.contact_edit.last_solve = posing.summary(context.scene, problem, result, outcome)
         self.report({"INFO"}, context.scene.contact_edit.last_solve)
 
     # ------------------------------------------------------------------ interactive
 
+    @checked
     def invoke(self, context, event):
         if context.area is None or context.window is None:
             return self.execute(context)
@@ -71,9 +67,8 @@ class CONTACT_EDIT_OT_solve(bpy.types.Operator):
         except USER_ERRORS as err:
             self.report({"ERROR"}, str(err))
             return {"CANCELLED"}
-        self._latest = None
-        self._result = None
-        self._error = None
+        self._latest = self._result = self._error = None
+        self._shown = self._evaluations = 0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._work, daemon=True)
         self._thread.start()
@@ -88,7 +83,9 @@ class CONTACT_EDIT_OT_solve(bpy.types.Operator):
         problem = self._problem
 
         def progress(step):
-            self._latest = step
+            if self._latest is None or step.energy < self._latest.energy:
+                self._latest = step  # the viewport shows the best pose so far, not every trial
+            self._evaluations = step.iteration
             return self._stop.is_set()
 
         try:
@@ -102,36 +99,47 @@ class CONTACT_EDIT_OT_solve(bpy.types.Operator):
             self._thread.join()
             if event.type == "RIGHTMOUSE":
                 self._problem.apply(self._problem.theta0)
+                context.scene.contact_edit.last_solve = "Cancelled; the pose is as it was before the solve"
+                self.report({"INFO"}, context.scene.contact_edit.last_solve)
                 return self._end(context, {"CANCELLED"})
-        if event.type == "TIMER" and self._thread.is_alive():
-            step = self._latest
-            if step is not None:
-                self._problem.apply(step.theta)
-                context.window_manager.progress_update(step.iteration)
-                terms = ", ".join(f"{k} {v:.3g}" for k, v in step.terms.items() if v)
-                context.area.header_text_set(
-                    f"Solving: evaluation {step.iteration}, energy {step.energy:.4g} ({terms}) · "
-                    "Esc: stop and keep · Right-click: cancel"
-                )
-            return {"RUNNING_MODAL"}
+            stopped = self._result is not None and self._result.status == "cancelled"
+            return self._done(context, "kept" if stopped else None)
         if self._thread.is_alive():
+            if event.type == "TIMER":
+                self._show_progress(context)
             return {"PASS_THROUGH"}
+        return self._done(context)
+
+    def _show_progress(self, context) -> None:
+        step = self._latest
+        if step is None or self._evaluations == self._shown:
+            return
+        self._shown = self._evaluations
+        self._problem.apply(step.theta)
+        context.window_manager.progress_update(self._evaluations)
+        terms = ", ".join(f"{k} {v:.3g}" for k, v in step.terms.items() if v)
+        context.area.header_text_set(
+            f"Solving: {self._evaluations} of at most {self.max_evaluations} evaluations, best energy "
+            f"{step.energy:.4g} ({terms}) · Esc: stop and keep the best pose · Right-click: cancel"
+        )
+
+    def _done(self, context, outcome: str | None = None) -> set:
         if self._error is not None:
             self._problem.apply(self._problem.theta0)
-            self.report({"ERROR"}, f"The solve failed: {self._error}")
+            self.report({"ERROR"}, f"The solve failed, so the pose is as it was: {self._error}")
             return self._end(context, {"CANCELLED"})
-        self._finish(context, self._problem, self._result)
+        self._finish(context, self._problem, self._result, outcome)
         return self._end(context, {"FINISHED"})
 
     def _end(self, context, status: set) -> set:
         context.window_manager.event_timer_remove(self._timer)
         context.window_manager.progress_end()
         context.area.header_text_set(None)
-        context.area.tag_redraw()
+        store.redraw()
         return status
 
 
-class CONTACT_EDIT_OT_flex_to_contact(bpy.types.Operator):
+class CONTACT_EDIT_OT_flex_to_contact(HotkeyTool, bpy.types.Operator):
     """Curl the selected finger bones until they touch the object (a quick first grip)"""
 
     bl_idname = "contact_edit.flex_to_contact"
@@ -148,10 +156,9 @@ class CONTACT_EDIT_OT_flex_to_contact(bpy.types.Operator):
     )
     keyframe: bpy.props.BoolProperty(name="Keyframe", description="Key the pose on the current frame")
 
-    @classmethod
-    def poll(cls, context):
-        return poll_hand_and_object(cls, context)
+    why_not = staticmethod(need_hand_and_object)
 
+    @checked
     def execute(self, context):
         return guarded(self, lambda: self._flex(context))
 
