@@ -26,13 +26,16 @@ PLATFORM_TAGS = {
 }
 DEFAULT_PLATFORMS = ("linux-x64",)
 
-#: Pinned run-time dependencies per Python version (numpy comes with Blender). NLopt 2.9.1 is the newest
-#: release with wheels for all four platforms on both Pythons; its wheels declare numpy>=2 because they
-#: were built against numpy 2, whose C API also serves numpy 1.x, so they run on Blender 4.2-5.0's numpy
-#: 1.26 (Blender installs bundled wheels without resolving their requirements; the install test runs it).
+#: Pinned run-time dependencies per Python version (numpy comes with Blender). SciPy's range of NumPy must
+#: hold the NumPy each Blender ships, or SciPy warns on import: 1.15.3 takes 1.23.5-2.4 (Blender 4.2-5.0
+#: ship 1.26); 1.18.1 takes 2.0-2.7 (Blender 5.1+ ship NumPy 2, and bpy 5.3 from PyPI pulls in 2.5).
+#: NLopt 2.9.1 is the newest release with wheels for all four platforms on both Pythons; its wheels declare
+#: numpy>=2 because they were built against numpy 2, whose C API also serves numpy 1.x, so they run on
+#: Blender 4.2-5.0's numpy 1.26 (Blender installs bundled wheels without resolving their requirements).
+#: tests/test_wheels.py runs the extension on these wheels alone, in Pythons that hold only bpy.
 REQUIREMENTS = {
     "3.11": ["scipy==1.15.3", "potpourri3d==1.4.0", "pyserial==3.5", "nlopt==2.9.1"],  # Blender 4.2-5.0
-    "3.13": ["scipy==1.15.3", "potpourri3d==1.4.0", "pyserial==3.5", "nlopt==2.9.1"],  # Blender 5.1+
+    "3.13": ["scipy==1.18.1", "potpourri3d==1.4.0", "pyserial==3.5", "nlopt==2.9.1"],  # Blender 5.1+
 }
 
 #: Our libraries, bundled as one pure-Python wheel.
@@ -95,11 +98,18 @@ def dependency_wheels(platform: str, python: str, cache: Path) -> list[Path]:
     done = subprocess.run(command, capture_output=True, text=True)
     if done.returncode != 0:
         raise BuildError(f"could not fetch wheels for {platform}, Python {python}:\n{done.stderr.strip()}")
-    wanted = {req.split("==")[0].lower().replace("-", "_") for req in REQUIREMENTS[python]}
-    found = [w for w in sorted(target.glob("*.whl")) if w.name.split("-")[0].lower() in wanted]
-    missing = wanted - {w.name.split("-")[0].lower() for w in found}
+    found, missing = [], []
+    for requirement in REQUIREMENTS[python]:
+        name, version = requirement.lower().replace("-", "_").split("==")
+        # Exactly the pinned release: the cache may hold others from earlier pins.
+        wheels = sorted(target.glob("*.whl"))
+        matches = [w for w in wheels if w.name.lower().split("-")[:2] == [name, version]]
+        if matches:
+            found.append(matches[0])
+        else:
+            missing.append(requirement)
     if missing:
-        raise BuildError(f"no wheels for {', '.join(sorted(missing))} on {platform}, Python {python}")
+        raise BuildError(f"no wheels for {', '.join(missing)} on {platform}, Python {python}")
     return found
 
 

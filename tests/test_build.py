@@ -52,3 +52,17 @@ def test_library_wheel_is_complete_reproducible_and_recorded():
             assert digest == f"sha256={expected}"
             assert int(size) == len(content)
     assert {line.split(",")[0] for line in record} == names
+
+
+def test_only_the_pinned_releases_are_bundled_whatever_else_the_cache_holds(tmp_path):
+    """A wheel cache that also holds another release of a dependency (from an earlier pin) must not put
+    both into the extension: which one Blender would install is then anyone's guess."""
+    cache = tmp_path / "wheels"
+    folder = cache / "3.13-linux-x64"
+    folder.mkdir(parents=True)
+    stale = folder / "scipy-1.15.3-cp313-cp313-manylinux_2_17_x86_64.manylinux2014_x86_64.whl"
+    stale.write_bytes(b"stale")
+    wheels = build.dependency_wheels("linux-x64", "3.13", cache)
+    names = sorted(w.name.split("-")[0] + "==" + w.name.split("-")[1] for w in wheels)
+    assert names == sorted(build.REQUIREMENTS["3.13"])
+    assert stale not in wheels

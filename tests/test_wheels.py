@@ -1,0 +1,117 @@
+"""The extension as users get it: the built zip installed into Pythons that hold only bpy (Blender 4.2 LTS
+on Python 3.11 with NumPy 1.26, and the newest bpy on Python 3.13), so that its bundled wheels are the
+only copy of our dependencies. A scripted session there paints, transfers and solves without a single
+warning, every dependency imported from the extension's own folder, matplotlib never imported; and that
+Blender's default keymap leaves our hotkeys alone."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from contact_edit_addon import build, keymaps
+
+from . import bpy_only, hotkeys
+
+pytestmark = pytest.mark.slow
+#: The DeprecationWarnings SWIG < 4.3 bindings raise on Python 3.12+ (NLopt's, up to 2.11 at least).
+SWIG = re.compile(r"DeprecationWarning: builtin type (Swig\w+|swigvarlink) has no __module__ attribute")
+
+SESSION = """
+import json, sys, warnings
+caught = []
+warnings.simplefilter("always")
+warnings.showwarning = lambda message, category, filename, lineno, file=None, line=None: caught.append(
+    f"{category.__name__}: {message} ({filename}:{lineno})")
+import bpy
+installed = bpy.ops.extensions.package_install_files(
+    filepath=ZIP, repo="user_default", enable_on_install=True)
+import geodesics, nlopt, numpy, potpourri3d, scipy, serial, solver, tangible
+modules = {m.__name__: m.__file__ for m in (geodesics, nlopt, potpourri3d, scipy, serial, solver, tangible)}
+
+bpy.ops.contact_edit.add_example()
+scene = bpy.context.scene
+hand, mug = scene.contact_edit.hand, scene.contact_edit.target
+bpy.context.view_layer.objects.active = hand
+import numpy as np
+co = np.array([v.co for v in hand.data.vertices])
+tip = co[np.argmax(co[:, 1])]
+pad = (co[:, 1] > tip[1] - 0.02) & (np.abs(co[:, 0] - tip[0]) < 0.01) & (co[:, 2] < np.median(co[:, 2]))
+hand.data.vertices.foreach_set("select", pad)
+painted = bpy.ops.contact_edit.paint(name="tip", source="SELECTION")
+from mathutils import Vector
+wall = mug.matrix_world @ Vector((-0.04, 0.0, 0.06))  # the side facing the palm
+transferred = bpy.ops.contact_edit.transfer(patch="tip", location=wall, direction=(0.0, 0.0, 1.0))
+solved = bpy.ops.contact_edit.solve(stage="ALL")
+print("RESULT " + json.dumps(dict(
+    installed=list(installed), painted=list(painted), transferred=list(transferred), solved=list(solved),
+    summary=scene.contact_edit.last_solve, modules=modules, numpy=numpy.__version__, scipy=scipy.__version__,
+    blender=bpy.app.version_string, python=sys.version.split()[0], warnings=caught,
+    site=[p for p in sys.path if "extensions" in p and p.endswith("site-packages")],
+    matplotlib=[m for m in sys.modules if m.startswith("matplotlib")])))
+"""
+
+
+@pytest.fixture(scope="module")
+def extension(tmp_path_factory) -> Path:
+    return build.build_extension(tmp_path_factory.mktemp("dist"), platforms=["linux-x64"])[0]
+
+
+@pytest.fixture(scope="module", params=sorted(bpy_only.ENVIRONMENTS))
+def bpy_python(request) -> Path:
+    try:
+        return bpy_only.python(request.param)
+    except RuntimeError as err:
+        pytest.skip(str(err))
+
+
+def run(python: Path, code: str, user: Path) -> tuple[dict, str]:
+    env = {"PATH": os.environ["PATH"], "HOME": str(user), "BLENDER_USER_RESOURCES": str(user)}
+    user.mkdir(parents=True, exist_ok=True)  # also the working folder, so our sources are not on the path
+    done = subprocess.run(
+        [str(python), "-c", code], capture_output=True, text=True, env=env, cwd=user, timeout=900
+    )
+    lines = [line for line in done.stdout.splitlines() if line.startswith(("RESULT ", "KEYMAP "))]
+    assert done.returncode == 0 and lines, (
+        f"{python} failed ({done.returncode}):\n{done.stdout}\n{done.stderr}"
+    )
+    return json.loads(lines[-1].split(" ", 1)[1]), done.stderr
+
+
+def test_the_extension_runs_on_its_bundled_wheels_alone_without_warnings(bpy_python, extension, tmp_path):
+    out, stderr = run(bpy_python, f"ZIP = {str(extension)!r}\n" + textwrap.dedent(SESSION), tmp_path)
+    assert out["installed"] == ["FINISHED"]
+    (site,) = out["site"]
+    assert site.startswith(str(tmp_path))
+    for name, path in out["modules"].items():
+        assert path.startswith(site), f"{name} came from {path}, not the extension's wheels"
+    assert out["painted"] == out["transferred"] == out["solved"] == ["FINISHED"]
+    assert "contacts in 1 patch pairs" in out["summary"] and out["summary"].endswith("converged")
+    # Every warning Python can raise is shown, hidden ones too; the only ones are DeprecationWarnings
+    # (hidden by default) that SWIG before 4.3 puts in NLopt's bindings on Python 3.12+.
+    shown = [w for w in out["warnings"] + stderr.splitlines() if "Warning" in w and not SWIG.search(w)]
+    assert shown == []
+    assert out["matplotlib"] == []
+
+
+@pytest.mark.parametrize("name", ["dev", *sorted(bpy_only.ENVIRONMENTS)])
+def test_blenders_default_keymap_leaves_our_hotkeys_alone(name, tmp_path):
+    """On every Blender here: 4.2 and the newest (bpy-only Pythons) and the dev venv's 5.0."""
+    try:
+        python = Path(sys.executable) if name == "dev" else bpy_only.python(name)
+    except RuntimeError as err:
+        pytest.skip(str(err))
+    defaults, _ = run(python, hotkeys.DEFAULT_KEYMAP_SCRIPT, tmp_path)
+    assert len(defaults) > 2000  # the whole default keymap
+    ours = [
+        ["3D View", idname, key, *(m in mods for m in ("ctrl", "shift", "alt"))]
+        for idname, key, mods, _ in keymaps.HOTKEYS
+    ]
+    assert hotkeys.clashes(ours, defaults) == {}
