@@ -25,6 +25,7 @@ Subcommands:
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import sys
 
 
@@ -254,7 +255,8 @@ def _retarget(args: argparse.Namespace) -> int:
             scheduler=args.scheduler, progress=bars,
         )  # fmt: skip
         bars.close()
-        paths = pipeline.save_result(result, out, annotation, plot=not args.no_plot)
+        plot = not args.no_plot and importlib.util.find_spec("matplotlib") is not None
+        paths = pipeline.save_result(result, out, annotation, plot=plot)
     except (SolverError, MotionError, OSError) as err:
         bars.close()
         print(f"contact-edit retarget: {err}", file=sys.stderr)
@@ -278,6 +280,8 @@ def _retarget(args: argparse.Namespace) -> int:
         print("  " + result.table.text().replace("\n", "\n  "))
     for name, path in paths.items():
         print(f"  {name:<10} {path}")
+    if not plot and not args.no_plot:
+        print("  metrics.png not written: matplotlib is not installed (pip install 'contact-edit[plots]')")
     return 0
 
 

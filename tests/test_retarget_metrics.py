@@ -3,6 +3,7 @@ plots."""
 
 import pickle
 import struct
+import sys
 
 import numpy as np
 import pytest
@@ -238,3 +239,14 @@ def test_plot_writes_a_png_of_the_requested_size(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["inter.png", "metrics.png"]  # no temporaries
     with pytest.raises(SolverError, match="nothing to plot"):
         plot_metrics(tmp_path / "x.png", 120.0)
+
+
+def test_without_matplotlib_plotting_says_how_to_get_it(tmp_path, monkeypatch):
+    """matplotlib is optional (the Blender extension does not bundle it): asking for a plot without it
+    names the extra to install instead of failing with an ImportError from deep inside."""
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    monkeypatch.setitem(sys.modules, "matplotlib.figure", None)
+    monkeypatch.setitem(sys.modules, "matplotlib.backends.backend_agg", None)
+    with pytest.raises(SolverError, match=r"contact-edit\[plots\]"):
+        plot_metrics(tmp_path / "x.png", 120.0, marker_distance=np.ones(10))
+    assert not (tmp_path / "x.png").exists()

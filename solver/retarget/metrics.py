@@ -454,7 +454,7 @@ def plot_metrics(
     number of contacts per frame (light pink) normalized to the largest and scaled to the chart's
     largest distance, as the paper's Fig. 11; the bottom panel the hand-object (green), self (red) and
     table (blue) intersection volumes in % of the hand's volume, as its Fig. 12. A panel without data
-    is left out. Needs matplotlib (imported here only).
+    is left out. Needs matplotlib (optional, imported here only): SolverError without it.
 
     Parameters
     ----------
@@ -469,8 +469,13 @@ def plot_metrics(
     dpi : int
     title : str, optional
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    try:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+    except ImportError:
+        raise SolverError(
+            f"{path}: plotting needs matplotlib, which is optional: pip install 'contact-edit[plots]'"
+        ) from None
 
     w, h = (int(v) for v in size)
     if w < 16 or h < 16:
