@@ -1,5 +1,6 @@
 """Build the Blender extension zips: the add-on, our libraries as a wheel, and every run-time dependency
-as unmodified wheels for Python 3.11 (Blender 4.2–5.0) and 3.13 (Blender 5.1+), one zip per platform.
+as unmodified wheels for Python 3.11 (Blender 4.2–5.0) and 3.13 (Blender 5.1+), and on Linux 3.14 (the
+distributions' own Blender builds), one zip per platform.
 
 Blender provides numpy, so it is never bundled; the other dependencies are pinned per Python version to
 releases that work with the numpy that those Blender versions ship (numpy 1.x up to Blender 5.0).
@@ -33,9 +34,25 @@ DEFAULT_PLATFORMS = ("linux-x64",)
 #: numpy>=2 because they were built against numpy 2, whose C API also serves numpy 1.x, so they run on
 #: Blender 4.2-5.0's numpy 1.26 (Blender installs bundled wheels without resolving their requirements).
 #: tests/test_wheels.py runs the extension on these wheels alone, in Pythons that hold only bpy.
+#: Python 3.14 serves Linux distributions' own Blender builds (Debian unstable's Blender 5.2 runs on its
+#: system Python 3.14); NLopt has cp314 wheels from 2.10 on, for every platform but Intel macOS, where
+#: Blender comes only from blender.org with its own Python 3.11 or 3.13.
 REQUIREMENTS = {
     "3.11": ["scipy==1.15.3", "potpourri3d==1.4.0", "pyserial==3.5", "nlopt==2.9.1"],  # Blender 4.2-5.0
     "3.13": ["scipy==1.18.1", "potpourri3d==1.4.0", "pyserial==3.5", "nlopt==2.9.1"],  # Blender 5.1+
+    "3.14": [
+        "scipy==1.18.1",
+        "potpourri3d==1.4.0",
+        "pyserial==3.5",
+        "nlopt==2.11.0",
+    ],  # distributions' Blender
+}
+#: The Pythons each platform's zip carries wheels for.
+PYTHONS = {
+    "linux-x64": ("3.11", "3.13", "3.14"),
+    "windows-x64": ("3.11", "3.13"),
+    "macos-arm64": ("3.11", "3.13"),
+    "macos-x64": ("3.11", "3.13"),
 }
 
 #: Our libraries, bundled as one pure-Python wheel.
@@ -116,11 +133,12 @@ def dependency_wheels(platform: str, python: str, cache: Path) -> list[Path]:
 def build_extension(
     output: Path,
     platforms=DEFAULT_PLATFORMS,
-    pythons=tuple(REQUIREMENTS),
+    pythons=None,
     cache: Path | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> list[Path]:
-    """Write one extension zip per platform into ``output``; returns their paths."""
+    """Write one extension zip per platform into ``output``, with wheels for ``pythons`` (default: the
+    platform's :data:`PYTHONS`); returns their paths."""
     say = progress or (lambda _msg: None)
     unknown = [p for p in platforms if p not in PLATFORM_TAGS]
     if unknown:
@@ -143,7 +161,7 @@ def build_extension(
     for platform in platforms:
         files = dict(addon)
         files[f"wheels/{lib_name}"] = lib_bytes
-        for python in pythons:
+        for python in pythons or PYTHONS[platform]:
             say(f"fetching wheels for {platform}, Python {python}")
             for wheel in dependency_wheels(platform, python, cache):
                 files[f"wheels/{wheel.name}"] = wheel.read_bytes()

@@ -259,7 +259,10 @@ class Session:
     def key(self, scene) -> int:
         """Key what the device poses at the current frame; returns how many bones and numbers were keyed."""
         if self.pose is None:
-            raise DeviceError("the device has not posed anything yet, so there is nothing to key")
+            raise DeviceError(
+                "the device poses nothing yet, so there is nothing to key: bind its joints to bones, "
+                "shape keys or properties in the Puppet Device panel first"
+            )
         frame = scene.frame_current
         key_rotations(self.rig.armature_object(), self.written_bones, frame)
         for target in self.targets:

@@ -181,8 +181,7 @@ def draw_view() -> None:
     def points(where, size, color):
         if shader["sized"]:
             points_shader.uniform_float("size", size)
-        else:
-            gpu.state.point_size_set(size)
+        gpu.state.point_size_set(size)  # what OpenGL uses unless Blender lets the shader size points
         points_shader.uniform_float("color", color)
         batch_for_shader(points_shader, "POINTS", {"pos": where}).draw(points_shader)
 

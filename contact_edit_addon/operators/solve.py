@@ -9,6 +9,7 @@ Either way the header, the status bar and the panel say which happened.
 from __future__ import annotations
 
 import threading
+import time
 
 import bpy
 
@@ -69,6 +70,7 @@ class CONTACT_EDIT_OT_solve(HotkeyTool, bpy.types.Operator):
             return {"CANCELLED"}
         self._latest = self._result = self._error = None
         self._shown = self._evaluations = 0
+        self._applied_at, self._next_at = None, 0.0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._work, daemon=True)
         self._thread.start()
@@ -111,10 +113,18 @@ class CONTACT_EDIT_OT_solve(HotkeyTool, bpy.types.Operator):
         return self._done(context)
 
     def _show_progress(self, context) -> None:
+        """Show the best pose so far, leaving Blender at least two thirds of its time for input: a pose
+        is drawn only when twice as long has passed since the last one as drawing that one took (the
+        time from applying it to this timer event, which comes after the redraw)."""
+        now = time.perf_counter()
+        if self._applied_at is not None:
+            self._next_at = now + 2.0 * (now - self._applied_at)
+            self._applied_at = None
         step = self._latest
-        if step is None or self._evaluations == self._shown:
+        if step is None or self._evaluations == self._shown or now < self._next_at:
             return
         self._shown = self._evaluations
+        self._applied_at = now
         self._problem.apply(step.theta)
         context.window_manager.progress_update(self._evaluations)
         terms = ", ".join(f"{k} {v:.3g}" for k, v in step.terms.items() if v)

@@ -1,0 +1,270 @@
+"""The add-on in a real Blender window (Debian's Blender under Xvfb, see tests/window/harness.py), driven
+by real key presses and mouse drags: the panel, hotkeys and Blender's own keymap, the area brush, the
+overlay on every shape the viewport shows, the live transfer preview, and a solve stopped and cancelled.
+
+Each session runs once per Blender; its screenshots are copied to $CONTACT_EDIT_SHOTS/<suite>/<session>/
+(default: pytest's temporary folder) and named in the test output when a test fails. Where no window can
+be had here (not root, no chroot yet), the tests skip and say how to get one.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from contact_edit_addon import build, keymaps
+
+from . import hotkeys
+from .window import harness
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module", params=sorted(harness.SUITES))
+def blender(request):
+    try:
+        found = harness.WindowBlender.find(request.param)
+    except RuntimeError as err:
+        pytest.skip(str(err))
+    yield found
+    found.cleanup()
+
+
+@pytest.fixture(scope="module")
+def extension(tmp_path_factory) -> Path:
+    return build.build_extension(tmp_path_factory.mktemp("dist"), platforms=["linux-x64"])[0]
+
+
+_runs: dict = {}
+
+
+def session(blender, extension, name: str, tmp_path_factory) -> harness.SessionRun:
+    """The session's run in this Blender (run on first use), checked to have ended cleanly."""
+    key = (blender.suite, name)
+    if key not in _runs:
+        shots = os.environ.get("CONTACT_EDIT_SHOTS")
+        out = (
+            Path(shots) / blender.suite / name
+            if shots
+            else tmp_path_factory.mktemp(f"{blender.suite}-{name}")
+        )
+        _runs[key] = blender.session(name, extension, out)
+    run = _runs[key]
+    where = f"(Blender {blender.version}; log and screenshots in {run.folder})"
+    assert "session_error" not in run.results, f"{run.results['session_error']}\n{where}"
+    assert run.returncode == 0, f"Blender exited with {run.returncode}\n{run.log[-3000:]}\n{where}"
+    ours = [t for t in run.tracebacks() if "contact_edit" in t or "geodesics" in t or "solver" in t]
+    assert not ours, f"tracebacks from the add-on:\n{ours[0]}\n{where}"
+    return run
+
+
+@pytest.fixture(scope="module")
+def panel(blender, extension, tmp_path_factory):
+    return session(blender, extension, "panel", tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def brush(blender, extension, tmp_path_factory):
+    return session(blender, extension, "brush", tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def transfer(blender, extension, tmp_path_factory):
+    return session(blender, extension, "transfer", tmp_path_factory)
+
+
+def pixels(run: harness.SessionRun, shot: str) -> np.ndarray:
+    return np.asarray(Image.open(run.shots[shot]).convert("RGB")).astype(int)
+
+
+def clear_of_axis(drawn: dict, margin: float = 4.0) -> np.ndarray:
+    """(k,) bool: the patch points the view sees that its axis line and end markers do not cover."""
+    xy, axis = np.array(drawn["xy"]), np.array(drawn["axis"])
+    a, b = axis[:-1], axis[1:]
+    t = np.clip(
+        np.einsum("kjd,jd->kj", xy[:, None] - a, b - a) / np.maximum(((b - a) ** 2).sum(1), 1e-9), 0, 1
+    )
+    to_line = np.linalg.norm(xy[:, None] - (a + t[..., None] * (b - a)), axis=2).min(axis=1)
+    to_ends = np.linalg.norm(xy[:, None] - axis[[0, -1]], axis=2).min(axis=1)
+    return np.array(drawn["visible"]) & (to_line > margin) & (to_ends > 10)
+
+
+def showing(image: np.ndarray, xy, color, tolerance: int = 24, reach: int = 1) -> np.ndarray:
+    """(k,) bool: whether a pixel of ``color`` (0..1 RGB) lies within ``reach`` pixels of each point."""
+    target = np.round(np.asarray(color[:3]) * 255)
+    close = np.all(np.abs(image - target) <= tolerance, axis=2)
+    found = np.zeros(len(xy), bool)
+    height, width = close.shape
+    for k, (x, y) in enumerate(np.round(np.asarray(xy)).astype(int)):
+        if 0 <= x < width and 0 <= y < height:
+            found[k] = close[max(y - reach, 0) : y + reach + 1, max(x - reach, 0) : x + reach + 1].any()
+    return found
+
+
+# ------------------------------------------------------------------------------------------ the panel
+
+
+def test_hotkeys_pressed_too_early_say_why(panel):
+    early = panel.results["early"]
+    assert early[0].startswith("Choose the hand and the object")  # Ctrl+Shift+E, solve
+    assert early[1].startswith("No device is connected")  # Ctrl+Shift+K, key the device pose
+    assert early[2].startswith("Choose the hand and the object")  # Shift+Alt+T, transfer
+
+
+def test_the_example_frames_a_hand_beside_a_mug(panel):
+    x, y, width, height = panel.results["viewport"]
+    boxes = {name: np.array(corners) for name, corners in panel.results["example"].items()}
+    for name, box in boxes.items():
+        assert np.all(
+            (box[:, 0] > x) & (box[:, 0] < x + width) & (box[:, 1] > y) & (box[:, 1] < y + height)
+        ), name
+    span = np.ptp(np.concatenate(list(boxes.values())), axis=0)
+    assert span[0] > 0.4 * width or span[1] > 0.4 * height  # framed, not a speck at the cursor
+    hand, mug = boxes["Hand"], boxes["Mug"]
+    assert np.ptp(hand[:, 0]) > 1.5 * np.ptp(mug[:, 0])  # the hand is hand-sized beside the mug
+
+
+def test_the_sidebar_has_the_contact_tab(panel):
+    assert panel.results["categories"][-1] == "Contact"
+    assert "panel" in panel.shots and "add_menu" in panel.shots
+
+
+def test_no_hotkey_of_ours_is_one_blender_already_uses_where_ours_would_run(panel):
+    """Read from the running Blender's default keyconfig: a mode's keymap comes before the 3D View one,
+    so a default hotkey there would silently win over ours."""
+    ours = panel.results["our_keymap"]
+    assert {(idname, key) for _, idname, key, *_ in ours} == {(i, k) for i, k, _, _ in keymaps.HOTKEYS}
+    assert {keymap for keymap, *_ in ours} == {"3D View"}
+    assert hotkeys.clashes(ours, panel.results["default_keymap"]) == {}
+
+
+# ------------------------------------------------------------------------------------------ the brush
+
+
+def test_the_brush_shows_its_circle_and_f_resizes_it(brush):
+    results = brush.results
+    assert results["radius_after"] > results["radius_before"] + 10
+    x, y = results["stroke"][0]
+    x += 2
+    image = pixels(brush, "brush_circle")
+    angles = np.linspace(0, 2 * np.pi, 48, endpoint=False)
+    radius = results["radius_before"]
+    ring = np.c_[x + radius * np.cos(angles), y + radius * np.sin(angles)]
+    assert showing(image, ring, (1.0, 1.0, 1.0), tolerance=40).mean() > 0.8
+    inside = np.c_[x + 0.5 * radius * np.cos(angles), y + 0.5 * radius * np.sin(angles)]
+    assert showing(image, inside, (1.0, 1.0, 1.0), tolerance=40, reach=0).mean() < 0.2
+
+
+def test_a_stroke_paints_an_area_shift_adds_and_ctrl_takes_away(brush):
+    (_, painted), (_, added), (_, subtracted) = (
+        brush.results[k][0] for k in ("painted", "added", "subtracted")
+    )
+    assert painted > 50  # an area, not a one-sample line of points
+    assert added > painted + 30
+    assert 0 < subtracted < added - 30
+    assert [len(brush.results[k]) for k in ("painted", "added", "subtracted")] == [1, 1, 1]
+
+
+def test_the_patch_list_shows_a_new_patch_at_once(brush):
+    """Blender redraws a panel when a property it shows is set, not when a script rebuilds a list: the
+    new patch's colour swatch must be in the sidebar right after the stroke, with no mouse over it."""
+    x, y, width, height = brush.results["sidebar"]
+    linear = np.array(brush.results["color"][:3])  # a COLOR property: the swatch shows it in sRGB
+    srgb = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055)
+
+    def swatch(shot):
+        region = pixels(brush, shot)[y : y + height, x : x + width]
+        return int(np.all(np.abs(region - np.round(srgb * 255)) <= 12, axis=2).sum())
+
+    assert brush.results["categories"][-1] == "Contact"
+    assert swatch("brush_circle") == 0
+    assert swatch("sidebar_after_stroke") > 50
+
+
+def test_the_overlay_draws_every_visible_point_on_the_surface_without_z_fighting(brush):
+    drawn = brush.results["overlay"]
+    color = brush.results["color"]
+    clear = clear_of_axis(drawn)
+    xy = np.array(drawn["xy"])[clear]
+    assert clear.sum() > 50
+    assert showing(pixels(brush, "overlay"), xy, color).mean() > 0.97
+    assert showing(pixels(brush, "overlay_hidden"), xy, color).mean() < 0.05  # the control: hidden
+
+
+def test_the_axis_start_is_a_large_white_marker(brush):
+    x, y = np.round(brush.results["overlay"]["axis"][0]).astype(int)
+    box = pixels(brush, "overlay")[y - 6 : y + 7, x - 6 : x + 7]
+    white = np.all(box > 235, axis=2).sum()
+    assert white >= 60  # a 13-pixel marker (points and the 2-pixel axis line are smaller)
+    hidden = pixels(brush, "overlay_hidden")[y - 6 : y + 7, x - 6 : x + 7]
+    assert np.all(hidden > 235, axis=2).sum() < 10
+
+
+def test_the_overlay_follows_the_pose_and_in_edit_mode_the_cage(brush):
+    color = brush.results["color"]
+    posed, cage = brush.results["posed"], brush.results["cage"]
+    clear = clear_of_axis(posed)
+    assert showing(pixels(brush, "posed"), np.array(posed["xy"])[clear], color).mean() > 0.95
+    in_edit = pixels(brush, "edit_mode")
+    clear = clear_of_axis(cage)
+    assert showing(in_edit, np.array(cage["xy"])[clear], color).mean() > 0.95
+    moved = np.linalg.norm(np.array(posed["xy"]) - np.array(cage["xy"]), axis=1) > 8
+    assert moved.sum() > 20  # the pose moved the patch on screen, so the two places are told apart
+    assert showing(in_edit, np.array(posed["xy"])[moved], color).mean() < 0.2
+
+
+# ------------------------------------------------------------------------------------- transfer and solve
+
+
+def test_the_transfer_is_previewed_under_the_mouse_then_stored_and_paired(transfer):
+    results = transfer.results
+    ((name, count),) = results["hand_patches"]
+    assert results["mug_before"] == [] and results["mug_after"] == [[name, count]]
+    assert results["paired"] == [[name, name]]
+    box = np.array(results["mug_box"])
+    (x0, y0), (x1, y1) = np.floor(box.min(0)).astype(int), np.ceil(box.max(0)).astype(int)
+    blue = (0.15, 0.60, 0.95)  # the first patch colour
+
+    def coloured(shot):
+        region = pixels(transfer, shot)[y0:y1, x0:x1]
+        return int(np.all(np.abs(region - np.round(np.array(blue) * 255)) <= 24, axis=2).sum())
+
+    assert coloured("transfer_before") < 20
+    assert coloured("transfer_hover") > 100  # the preview, before anything was stored
+    assert coloured("transferred") > 100
+
+
+def test_a_solve_shows_its_progress_esc_keeps_the_best_pose_and_right_click_puts_it_back(transfer):
+    results = transfer.results
+    assert results["first_pose_after"] < 5.0  # software OpenGL on two busy cores
+    assert results["finished"].endswith(("converged", "stopped at the evaluation limit"))
+    assert results["after_escape"].endswith("stopped by you; kept the best pose")
+    assert results["moved_by_escape"] > 0
+    assert results["cancel_restored"]
+    assert results["after_cancel"] == "Cancelled; the pose is as it was before the solve"
+    reports = results["reports"]
+    assert reports[-2] == results["after_escape"] and reports[-1] == results["after_cancel"]
+    assert "solving" in transfer.shots
+
+
+# ------------------------------------------------------------------------------------- the puppet device
+
+
+@pytest.fixture(scope="module")
+def device(blender, extension, tmp_path_factory):
+    return session(blender, extension, "device", tmp_path_factory)
+
+
+def test_the_status_bar_says_what_the_device_panel_says(device):
+    results = device.results
+    assert results["status"].startswith("Connected to the simulator: 3 joints attached")
+    shown = [
+        r for r in results["reports"] if r.startswith(("Connected", "Live", "Joint", "Lost", "The device on"))
+    ]
+    assert shown[-1] == results["status"]  # the latest device report is the panel's line
+    assert results["reports"][-1].startswith("The device poses nothing yet")  # Ctrl+Shift+K, no bindings
+    assert results["stopped"].startswith("Stopped")

@@ -1,0 +1,99 @@
+"""The area brush and the overlay in a real window: the circle and F to resize it, a stroke, Shift to add
+and Ctrl to take away; then where the patch is drawn (Object Mode, posed, and on the edit cage)."""
+
+import bpy
+import numpy as np
+from common import (
+    example,
+    finger_stroke,
+    open_contact_tab,
+    patch_points,
+    rest_vertices,
+    shown_vertices,
+    world,
+)
+from mathutils import Euler, Vector
+
+
+def project_patch(s, view, hand, name, vertices):
+    """Screen points of the patch drawn on ``vertices``, which of them the view sees, and its axis."""
+    points, axis = patch_points(hand, name, vertices)
+    return {
+        "xy": view.project(points),
+        "visible": view.visible(points, tolerance=5e-4),
+        "axis": view.project(axis),
+    }
+
+
+def steps(s):
+    view = s.view3d()
+    hand, _ = example(view)
+    hand.parent.hide_set(True)  # its bones would hide parts of the patch from the view (and the test)
+    co = rest_vertices(hand)
+    tip = world(hand, co[np.argmax(co[:, 1])])[0]
+    view.rv3d.view_location = Vector(tip - [0.0, 0.02, 0.0])
+    view.rv3d.view_distance = 0.12
+    yield 0.5
+    yield from open_contact_tab(s, view)
+    ui = s.region(view, "UI")
+    s.record("sidebar", [ui.x, view.window.height - ui.y - ui.height, ui.width, ui.height])
+    yield 0.3
+    path = finger_stroke(hand, view)
+    s.record("stroke", path)
+    yield from s.move(*path[0])
+    yield from s.key("ctrl+shift+p")
+    yield from s.move(path[0][0] + 2, path[0][1])
+    settings = bpy.context.scene.contact_edit
+    s.record("radius_before", settings.brush_radius)
+    yield from s.shot("brush_circle")
+    yield from s.key("f")
+    yield from s.move(path[0][0] + 30, path[0][1])
+    yield from s.shot("brush_resize")
+    s.xdotool("click", 1)
+    yield 0.4
+    s.record("radius_after", settings.brush_radius)
+    settings.brush_radius = 25
+    yield from s.drag(path)
+    s.record("painted", [(e.name, e.points) for e in hand.contact_edit.patches])
+    yield from s.shot("stroke")
+
+    yield from s.shot("sidebar_after_stroke")  # the mouse is still on the hand: nothing hovered the list
+
+    # Shift adds beside it, Ctrl takes a band away across it.
+    side = [(x + 30, y + 30) for x, y in path]
+    yield from s.move(*side[0])
+    yield from s.key("ctrl+shift+p")
+    yield from s.drag(side, modifiers=("shift",))
+    s.record("added", [(e.name, e.points) for e in hand.contact_edit.patches])
+    middle = path[len(path) // 2]
+    across = [(middle[0] - 40 + 4 * i, middle[1] + 40 - 4 * i) for i in range(21)]
+    yield from s.move(*across[0])
+    yield from s.key("ctrl+shift+p")
+    yield from s.drag(across, modifiers=("ctrl",))
+    s.record("subtracted", [(e.name, e.points) for e in hand.contact_edit.patches])
+    name = hand.contact_edit.patches[0].name
+    s.record("color", list(hand.contact_edit.patches[0].color))
+
+    # Where the overlay draws it: shown, hidden (the control), posed, and on the edit cage.
+    s.record("overlay", project_patch(s, view, hand, name, shown_vertices(hand)))
+    yield from s.shot("overlay")
+    hand.contact_edit.patches[0].visible = False
+    yield from s.shot("overlay_hidden")
+    hand.contact_edit.patches[0].visible = True
+    armature = hand.parent
+    for bone in ("middle_2", "middle_3"):  # the stroke's finger curls a little, staying in view
+        armature.pose.bones[bone].rotation_mode = "XYZ"
+        armature.pose.bones[bone].rotation_euler = Euler((0.3, 0.0, 0.0))
+    bpy.context.view_layer.update()
+    s.record("posed", project_patch(s, view, hand, name, shown_vertices(hand)))
+    yield from s.shot("posed")
+    with view.override():
+        bpy.context.view_layer.objects.active = hand
+        bpy.ops.object.mode_set(mode="EDIT")
+        bpy.ops.mesh.select_all(action="DESELECT")  # selected vertices are orange too
+    yield 0.3
+    s.record("cage", project_patch(s, view, hand, name, rest_vertices(hand)))
+    yield from s.shot("edit_mode")
+    with view.override():
+        bpy.ops.object.mode_set(mode="OBJECT")
+    s.record("reports", s.reports())

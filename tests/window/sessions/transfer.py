@@ -1,0 +1,118 @@
+"""Transferring with the live preview, then solving with progress, Esc (keep the best pose) and
+right-click (put the start pose back), in a real window."""
+
+import subprocess
+import time
+
+import bpy
+import numpy as np
+from common import addon, example, rest_vertices, world
+from mathutils import Vector
+
+
+def select_palm_side(hand, reach: float, width: float = 1.0) -> None:
+    """The palm side of the fingers within ``reach`` metres of the longest finger's tip (and ``width``
+    of it across), as the paint-from-selection tool takes them."""
+    co = rest_vertices(hand)
+    tip = co[np.argmax(co[:, 1])]
+    pads = (
+        (co[:, 1] > tip[1] - reach) & (np.abs(co[:, 0] - tip[0]) < width) & (co[:, 2] < np.median(co[:, 2]))
+    )
+    hand.data.vertices.foreach_set("select", pads)
+
+
+class _Mouse:
+    """A mouse event at screen pixels (x, y), as ray_hit reads it."""
+
+    def __init__(self, view, x, y):
+        self.mouse_region_x = x - view.region.x
+        self.mouse_region_y = view.window.height - y - view.region.y
+
+
+def steps(s):
+    view = s.view3d()
+    hand, mug = example(view)
+    with view.override():
+        bpy.context.view_layer.objects.active = hand
+        select_palm_side(hand, 0.02, width=0.01)
+        bpy.ops.contact_edit.paint(name="tip", source="SELECTION")
+    s.record("hand_patches", [(e.name, e.points) for e in hand.contact_edit.patches])
+    # Look at the mug's side facing away from the hand, and place the transfer there with the mouse.
+    centre = world(mug, rest_vertices(mug).mean(0))[0]
+    view.rv3d.view_location = Vector(centre)
+    view.rv3d.view_distance = 0.3
+    yield 0.4
+    x, y = view.project([centre])[0] + [25.0, 0.0]  # on the mug's wall facing the view
+    with view.override():
+        hit = addon("operators.common").ray_hit(bpy.context, _Mouse(view, x, y), mug)
+    side = hit[0]
+    yield from s.move(x, y)
+    s.record("mug_box", view.project([mug.matrix_world @ Vector(corner) for corner in mug.bound_box]))
+    yield from s.shot("transfer_before")
+    yield from s.key("shift+alt+t")
+    yield from s.move(x + 3, y)
+    yield 0.5
+    yield from s.shot("transfer_hover")
+    s.record("mug_before", [e.name for e in mug.contact_edit.patches])
+    yield from s.drag([(x + 3 + i, y - 2 * i) for i in range(0, 30, 3)])
+    yield 0.3
+    s.record("mug_after", [(e.name, e.points) for e in mug.contact_edit.patches])
+    s.record("paired", [(e.name, e.pair) for e in hand.contact_edit.patches])
+    yield from s.shot("transferred")
+
+    # Solve: the pose improves on screen; Esc stops and keeps the best pose. The patches are big and the
+    # hand starts turned away from the mug, so that the solve takes long enough to be stopped.
+    hand.select_set(True)
+    bpy.context.view_layer.objects.active = hand
+    with view.override():
+        select_palm_side(hand, 0.2)  # the whole palm side
+        bpy.ops.contact_edit.paint(name="fingers", source="SELECTION")
+        bpy.ops.contact_edit.transfer(patch="fingers", location=side, direction=(0.0, 0.0, 1.0))
+    armature = hand.parent
+    root = armature.pose.bones[0]
+    root.rotation_mode = "XYZ"
+    view.rv3d.view_distance = 0.45
+    yield from s.move(*view.centre())
+
+    def pose():
+        return {b.name: tuple(b.rotation_quaternion) + tuple(b.rotation_euler) for b in armature.pose.bones}
+
+    started = []
+
+    def solve_from_afar(then=None):
+        """Turn the hand away and start the solve with its hotkey; then wait for the first better pose
+        drawn, or send the xdotool input ``then`` 0.35 s later (the solve takes about a second here)."""
+        root.location, root.rotation_euler = (0.06, -0.08, 0.05), (1.1, -0.9, 1.3)
+        bpy.context.view_layer.update()
+        started.append(pose())
+        posed, began = root.rotation_euler[:], time.monotonic()
+        if then is not None:  # the second key a fixed time after the first, however busy Blender is
+            subprocess.Popen(["xdotool", "key", "--clearmodifiers", "ctrl+shift+e", "sleep", "0.35", *then])
+            yield 1.0
+            return
+        yield from s.key("ctrl+shift+e", settle=0.0)
+        while root.rotation_euler[:] == posed and time.monotonic() - began < 10:
+            yield 0.02
+        s.record("first_pose_after", time.monotonic() - began)
+
+    # The progress in the header, as the solve runs to its end.
+    yield from solve_from_afar()
+    yield from s.shot("solving", settle=0.05)
+    while "evaluations in" not in bpy.context.scene.contact_edit.last_solve:
+        yield 0.1
+    s.record("finished", bpy.context.scene.contact_edit.last_solve)
+
+    # Esc: it stops and keeps the best pose so far.
+    bpy.context.scene.contact_edit.last_solve = ""
+    yield from solve_from_afar(then=("key", "Escape"))
+    s.record("after_escape", bpy.context.scene.contact_edit.last_solve)
+    kept = pose()
+    s.record("moved_by_escape", sum(kept[n] != started[-1][n] for n in kept))
+    yield from s.shot("stopped")
+
+    # Right-click cancels: the pose goes back to what it was when the solve began.
+    yield from solve_from_afar(then=("click", "3"))
+    after = pose()
+    s.record("cancel_restored", all(np.allclose(after[n], started[-1][n]) for n in after))
+    s.record("after_cancel", bpy.context.scene.contact_edit.last_solve)
+    s.record("reports", [r for r in s.reports() if not r.startswith("bpy.ops")])
