@@ -66,3 +66,10 @@ def test_only_the_pinned_releases_are_bundled_whatever_else_the_cache_holds(tmp_
     names = sorted(w.name.split("-")[0] + "==" + w.name.split("-")[1] for w in wheels)
     assert names == sorted(build.REQUIREMENTS["3.13"])
     assert stale not in wheels
+
+
+def test_every_platform_names_pinned_pythons():
+    assert set(build.PYTHONS) == set(build.PLATFORM_TAGS)
+    for pythons in build.PYTHONS.values():
+        assert {"3.11", "3.13"} <= set(pythons) <= set(build.REQUIREMENTS)
+    assert "3.14" in build.PYTHONS["linux-x64"]  # distributions' Blender (Debian unstable: 5.2 on 3.14)
