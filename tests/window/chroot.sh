@@ -33,6 +33,12 @@ setup)
     suite=${1:-trixie}
     root=$(folder "$suite")
     if [ -f "$root/.contact-edit-ready" ]; then
+        if [ "$(cat "$root/.contact-edit-packages" 2>/dev/null)" != "$packages" ]; then
+            # made when the list was another: add what is new
+            in_root "$root" bash -c "apt-get update -q && DEBIAN_FRONTEND=noninteractive \
+                apt-get install -y -q --no-install-recommends $packages && apt-get clean"
+            echo "$packages" > "$root/.contact-edit-packages"
+        fi
         echo "Blender window chroot ready: $root ($(cat "$root/.contact-edit-ready"))"
         exit 0
     fi
@@ -53,6 +59,7 @@ setup)
     in_root "$partial" bash -c "apt-get update -q && DEBIAN_FRONTEND=noninteractive \
         apt-get install -y -q --no-install-recommends $packages && apt-get clean"
     in_root "$partial" blender --version | head -1 > "$partial/.contact-edit-ready"
+    echo "$packages" > "$partial/.contact-edit-packages"
     rm -rf "$root"
     mv "$partial" "$root"
     echo "Blender window chroot ready: $root ($(cat "$root/.contact-edit-ready"))"
