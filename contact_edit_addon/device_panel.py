@@ -8,6 +8,7 @@ from tangible.assembly import colour_name
 from tangible.topology import DeviceState
 
 from .device_session import device_armature, live_session
+from .panels import SubPanel
 
 
 def joint_label(state: DeviceState, joint: int) -> str:
@@ -44,12 +45,8 @@ class CONTACT_EDIT_MT_device_ports(bpy.types.Menu):
             choose.data_path, choose.value = "scene.contact_edit_device.port", device
 
 
-class VIEW3D_PT_contact_edit_device(bpy.types.Panel):
+class VIEW3D_PT_contact_edit_device(SubPanel, bpy.types.Panel):
     bl_label = "Puppet Device"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Contact"
-    bl_parent_id = "VIEW3D_PT_contact_edit"
     bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):

@@ -23,13 +23,24 @@ class CONTACT_EDIT_UL_patches(bpy.types.UIList):
         row.prop(item, "visible", text="", icon="HIDE_OFF" if item.visible else "HIDE_ON", emboss=False)
 
 
-class VIEW3D_PT_contact_edit(bpy.types.Panel):
-    """The hand and the object posed against each other."""
+class ContactTab:
+    """Where the panels live: the Contact tab of the 3D viewport's sidebar."""
 
-    bl_label = "Contact Edit"
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
     bl_category = "Contact"
+
+
+class SubPanel(ContactTab):
+    """A panel under the main one."""
+
+    bl_parent_id = "VIEW3D_PT_contact_edit"
+
+
+class VIEW3D_PT_contact_edit(ContactTab, bpy.types.Panel):
+    """The hand and the object posed against each other."""
+
+    bl_label = "Contact Edit"
 
     def draw(self, context):
         layout = self.layout
@@ -41,14 +52,10 @@ class VIEW3D_PT_contact_edit(bpy.types.Panel):
             layout.operator("contact_edit.add_example", icon="ADD")
 
 
-class VIEW3D_PT_contact_edit_patches(bpy.types.Panel):
+class VIEW3D_PT_contact_edit_patches(SubPanel, bpy.types.Panel):
     """The active object's patches and the tools that make and move them."""
 
     bl_label = "Patches"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Contact"
-    bl_parent_id = "VIEW3D_PT_contact_edit"
 
     def draw(self, context):
         layout = self.layout
@@ -74,14 +81,10 @@ class VIEW3D_PT_contact_edit_patches(bpy.types.Panel):
         column.operator("contact_edit.clear", text="Remove", icon="X")
 
 
-class VIEW3D_PT_contact_edit_brush(bpy.types.Panel):
+class VIEW3D_PT_contact_edit_brush(SubPanel, bpy.types.Panel):
     """The area brush and the default axis of new patches."""
 
     bl_label = "Brush"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Contact"
-    bl_parent_id = "VIEW3D_PT_contact_edit"
     bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):
@@ -96,14 +99,10 @@ class VIEW3D_PT_contact_edit_brush(bpy.types.Panel):
         layout.prop(settings, "deformed", text="Posed")
 
 
-class VIEW3D_PT_contact_edit_pose(bpy.types.Panel):
+class VIEW3D_PT_contact_edit_pose(SubPanel, bpy.types.Panel):
     """Contact IK and flex-to-contact, with the solver's weights and how the last solve went."""
 
     bl_label = "Pose"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Contact"
-    bl_parent_id = "VIEW3D_PT_contact_edit"
 
     def draw(self, context):
         layout = self.layout
@@ -133,14 +132,10 @@ class VIEW3D_PT_contact_edit_pose(bpy.types.Panel):
             column.prop(settings, "weight_prior", text="Rest pose")
 
 
-class VIEW3D_PT_contact_edit_library(bpy.types.Panel):
+class VIEW3D_PT_contact_edit_library(SubPanel, bpy.types.Panel):
     """Saving and loading patches as reusable libraries; manifold proxies for broken meshes."""
 
     bl_label = "Library"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Contact"
-    bl_parent_id = "VIEW3D_PT_contact_edit"
     bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):

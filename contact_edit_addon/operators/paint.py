@@ -204,25 +204,25 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
             self._preview(context, added)
 
     def _preview(self, context, items) -> None:
+        """Show what the stroke covers so far: the new points, or the active patch without the erased ones."""
         obj = self._object
         if self._mesh is None:
             self._mesh = shown_shape(obj)
-        dabs, _ = self._dabs(obj, self._mesh, items)
-        density = local_density(context, obj)
-        if self.mode == "SUBTRACT":
             name = store.active_patch_name(obj)
-            patch = store.load(obj)[name]
+            self._touched = (name, store.load(obj)[name]) if name is not None else None
+        entries = {e.name: tuple(e.color) for e in obj.contact_edit.patches}
+        if self.mode == "SUBTRACT":
+            name, patch = self._touched
             keep = erase(self._mesh, patch.points, self._dabs(obj, self._mesh, self.stroke)[0])
-            color = next(tuple(e.color) for e in obj.contact_edit.patches if e.name == name)
-            overlays.preview(obj, hidden={name}, loose=[(patch.points[np.flatnonzero(keep)], color)])
+            overlays.preview(obj, hidden={name}, loose=[(patch.points[np.flatnonzero(keep)], entries[name])])
         else:
-            self._found.append(paint(self._mesh, dabs, density)[0])
+            self._found.append(
+                paint(self._mesh, self._dabs(obj, self._mesh, items)[0], local_density(context, obj))[0]
+            )
             color = (
-                next(
-                    tuple(e.color) for e in obj.contact_edit.patches if e.name == store.active_patch_name(obj)
-                )
+                entries[self._touched[0]]
                 if self.mode == "ADD"
-                else store.PALETTE[len(obj.contact_edit.patches) % len(store.PALETTE)]
+                else store.PALETTE[len(entries) % len(store.PALETTE)]
             )
             overlays.preview(obj, loose=[(points, color) for points in self._found])
         context.area.tag_redraw()

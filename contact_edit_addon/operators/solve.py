@@ -9,7 +9,6 @@ Either way the header, the status bar and the panel say which happened.
 from __future__ import annotations
 
 import threading
-import time
 
 import bpy
 
@@ -70,9 +69,8 @@ class CONTACT_EDIT_OT_solve(HotkeyTool, bpy.types.Operator):
             return {"CANCELLED"}
         self._latest = self._result = self._error = None
         self._shown = self._evaluations = 0
-        self._applied_at, self._next_at = None, 0.0
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._work, daemon=True)
+        self._thread = threading.Thread(target=self._work, name="contact-edit solve", daemon=True)
         self._thread.start()
         self._timer = context.window_manager.event_timer_add(1.0 / REDRAW_RATE, window=context.window)
         context.window_manager.progress_begin(0, self.max_evaluations)
@@ -113,18 +111,10 @@ class CONTACT_EDIT_OT_solve(HotkeyTool, bpy.types.Operator):
         return self._done(context)
 
     def _show_progress(self, context) -> None:
-        """Show the best pose so far, leaving Blender at least two thirds of its time for input: a pose
-        is drawn only when twice as long has passed since the last one as drawing that one took (the
-        time from applying it to this timer event, which comes after the redraw)."""
-        now = time.perf_counter()
-        if self._applied_at is not None:
-            self._next_at = now + 2.0 * (now - self._applied_at)
-            self._applied_at = None
         step = self._latest
-        if step is None or self._evaluations == self._shown or now < self._next_at:
+        if step is None or self._evaluations == self._shown:
             return
         self._shown = self._evaluations
-        self._applied_at = now
         self._problem.apply(step.theta)
         context.window_manager.progress_update(self._evaluations)
         terms = ", ".join(f"{k} {v:.3g}" for k, v in step.terms.items() if v)
@@ -136,7 +126,8 @@ class CONTACT_EDIT_OT_solve(HotkeyTool, bpy.types.Operator):
     def _done(self, context, outcome: str | None = None) -> set:
         if self._error is not None:
             self._problem.apply(self._problem.theta0)
-            self.report({"ERROR"}, f"The solve failed, so the pose is as it was: {self._error}")
+            context.scene.contact_edit.last_solve = f"The solve failed; the pose is as it was: {self._error}"
+            self.report({"ERROR"}, context.scene.contact_edit.last_solve)
             return self._end(context, {"CANCELLED"})
         self._finish(context, self._problem, self._result, outcome)
         return self._end(context, {"FINISHED"})

@@ -14,7 +14,6 @@ nothing from the project.
 
 from __future__ import annotations
 
-import contextlib
 import importlib
 import json
 import os
@@ -172,11 +171,6 @@ class Session:
             self.xdotool("keyup", modifier)
         yield 0.3
 
-    def click(self, x: float, y: float, button: int = 1):
-        yield from self.move(x, y)
-        self.xdotool("click", button)
-        yield 0.4
-
     # ------------------------------------------------------------------ screenshots
 
     def shot(self, name: str, settle: float = 0.6):
@@ -239,11 +233,3 @@ def start(module: str, first_delay: float = 2.0) -> None:
         return max(float(delay or 0.0), 0.01)
 
     bpy.app.timers.register(tick, first_interval=first_delay)
-
-
-@contextlib.contextmanager
-def timed(session: Session, key: str):
-    """Record how long the block took, in seconds."""
-    began = time.perf_counter()
-    yield
-    session.record(key, time.perf_counter() - began)

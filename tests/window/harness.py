@@ -110,9 +110,7 @@ class WindowBlender:
         self._installed[key] = folder
         return folder
 
-    def session(
-        self, name: str, extension: Path, out: Path, blend: Path | None = None, timeout: float = 300
-    ) -> SessionRun:
+    def session(self, name: str, extension: Path, out: Path, timeout: float = 300) -> SessionRun:
         """Run ``sessions/<name>.py`` in a fresh Blender window with the extension installed; its
         console output, results and screenshots are copied into ``out``."""
         user = self._user_folder(extension)
@@ -121,10 +119,6 @@ class WindowBlender:
         for source in (HERE / "driver.py", *SESSIONS.glob("*.py")):
             shutil.copy(source, folder / source.name)
         inside = "/" + folder.relative_to(self.root).as_posix()
-        arguments = []
-        if blend is not None:
-            shutil.copy(blend, folder / "scene.blend")
-            arguments.append(f"{inside}/scene.blend")
         expr = f"import sys; sys.path.insert(0, {inside!r}); import driver; driver.start({name!r})"
         width, height = SCREEN
         script = textwrap.dedent(
@@ -136,7 +130,7 @@ class WindowBlender:
             export DISPLAY=:$(cat {inside}/display)
             export BLENDER_USER_RESOURCES={inside}/user CONTACT_EDIT_SESSION={inside}
             timeout -k 5 {int(timeout)} blender --window-geometry 0 0 {width} {height} --no-window-focus \\
-                {" ".join(arguments)} --python-expr {_quote(expr)} > {inside}/blender.log 2>&1
+                --python-expr {_quote(expr)} > {inside}/blender.log 2>&1
             code=$?
             kill $xvfb; wait $xvfb 2>/dev/null
             exit $code
