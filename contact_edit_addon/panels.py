@@ -2,6 +2,7 @@
 tools, the brush, the pose solve, and the library. Every line is short enough for the sidebar's
 default width; long messages (the last solve) are split into one line per clause."""
 
+import blf
 import bpy
 
 from . import posing
@@ -12,7 +13,9 @@ class CONTACT_EDIT_UL_patches(bpy.types.UIList):
 
     def draw_item(self, context, layout, data, item, icon, active_data, active_property, index=0, flt_flag=0):
         row = layout.row(align=True)
-        row.prop(item, "color", text="")
+        swatch = row.row(align=True)
+        swatch.ui_units_x = 1.2  # a swatch, so that the name has the room
+        swatch.prop(item, "color", text="")
         row.prop(item, "name", text="", emboss=False)
         detail = f"{item.points}"
         if item.parent:
@@ -21,6 +24,26 @@ class CONTACT_EDIT_UL_patches(bpy.types.UIList):
             detail += " · ↔"
         row.label(text=detail)
         row.prop(item, "visible", text="", icon="HIDE_OFF" if item.visible else "HIDE_ON", emboss=False)
+
+
+#: Sidebar pixels (at UI scale 1) that a boxed label with an icon does not have for its text: the tabs,
+#: the panel's and the box's margins, the icon (measured in Blender 4.3 and 5.2 windows).
+LABEL_MARGIN = 105
+
+
+def wrapped(context, text: str) -> list[str]:
+    """``text`` in lines that fit the sidebar's width as it is now (Blender cuts a long label short)."""
+    scale = context.preferences.system.ui_scale
+    room = context.region.width - LABEL_MARGIN * scale
+    blf.size(0, 11 * scale)
+    lines = [""]
+    for word in text.split():
+        trial = f"{lines[-1]} {word}".strip()
+        if lines[-1] and blf.dimensions(0, trial)[0] > room:
+            lines.append(word)
+        else:
+            lines[-1] = trial
+    return lines
 
 
 class ContactTab:
@@ -118,8 +141,9 @@ class VIEW3D_PT_contact_edit_pose(SubPanel, bpy.types.Panel):
         row.prop(settings, "keyframe", text="Key", toggle=True, icon="KEY_HLT")
         if settings.last_solve:
             box = layout.box().column(align=True)
-            for i, clause in enumerate(settings.last_solve.split("; ")):
-                box.label(text=clause, icon="INFO" if i == 0 else "BLANK1")
+            lines = [line for clause in settings.last_solve.split("; ") for line in wrapped(context, clause)]
+            for i, line in enumerate(lines):
+                box.label(text=line, icon="INFO" if i == 0 else "BLANK1")
         header, body = layout.panel("contact_edit_weights", default_closed=True)
         header.label(text="Weights")
         header.operator("contact_edit.reset_weights", text="", icon="LOOP_BACK", emboss=False)

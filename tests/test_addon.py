@@ -355,3 +355,30 @@ def test_a_proxy_carries_contacts_for_a_mesh_in_pieces(tmp_path):
     assert out["components"] == 1  # one closed surface around the union
     assert out["gap"] < 0.02  # on the original surface (up to the UV spheres' faceting)
     assert out["outside"] > 0.95  # the outer shell, not the buried halves
+
+
+def test_panel_messages_wrap_to_the_sidebar_width_instead_of_being_cut(tmp_path):
+    out = run_blender(
+        """
+        import blf
+        from types import SimpleNamespace
+        from contact_edit_addon import panels
+        text = "1877 contacts in 2 patch pairs mean distance 2.52 cm, largest 9.87 cm, stopped by you"
+        found = {}
+        for width, scale in ((291, 1.0), (200, 1.0), (400, 2.0)):
+            context = SimpleNamespace(preferences=SimpleNamespace(system=SimpleNamespace(ui_scale=scale)),
+                                      region=SimpleNamespace(width=width))
+            lines = panels.wrapped(context, text)
+            blf.size(0, 11 * scale)
+            found[f"{width}@{scale}"] = dict(lines=lines, widths=[blf.dimensions(0, l)[0] for l in lines],
+                                             room=width - panels.LABEL_MARGIN * scale)
+        result(found)
+        """,
+        tmp_path,
+        setup="import contact_edit_addon\n",
+    )
+    text = "1877 contacts in 2 patch pairs mean distance 2.52 cm, largest 9.87 cm, stopped by you"
+    for case in out.values():
+        assert " ".join(case["lines"]) == text
+        assert max(case["widths"]) <= case["room"] and len(case["lines"]) >= 2
+    assert len(out["200@1.0"]["lines"]) > len(out["291@1.0"]["lines"])
