@@ -196,11 +196,8 @@ class CONTACT_EDIT_OT_add_example(bpy.types.Operator):
 
     def execute(self, context):
         _, hand, mug = example_scene(context, np.array(context.scene.cursor.location))
-        for other in context.selected_objects:
-            other.select_set(False)
-        mug.select_set(True)
-        hand.select_set(True)
-        context.view_layer.objects.active = hand
+        _select_only(context, hand)
+        mug.select_set(True)  # both, for framing
         if context.area is not None and context.area.type == "VIEW_3D":
             bpy.ops.view3d.view_selected()
         self.report({"INFO"}, f"Added '{hand.name}' and '{mug.name}': paint on the hand, then transfer")

@@ -116,10 +116,10 @@ def dependency_wheels(platform: str, python: str, cache: Path) -> list[Path]:
     if done.returncode != 0:
         raise BuildError(f"could not fetch wheels for {platform}, Python {python}:\n{done.stderr.strip()}")
     found, missing = [], []
+    wheels = sorted(target.glob("*.whl"))
     for requirement in REQUIREMENTS[python]:
         name, version = requirement.lower().replace("-", "_").split("==")
         # Exactly the pinned release: the cache may hold others from earlier pins.
-        wheels = sorted(target.glob("*.whl"))
         matches = [w for w in wheels if w.name.lower().split("-")[:2] == [name, version]]
         if matches:
             found.append(matches[0])

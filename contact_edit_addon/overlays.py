@@ -146,16 +146,21 @@ def shown_vertices(obj, depsgraph) -> np.ndarray | None:
     return vertices.reshape(-1, 3)
 
 
-def lifted(obj, vertices, triangles, faces, bary, view, pixels: float) -> np.ndarray:
-    """World positions of surface points, raised along their faces' normals by ``pixels`` of screen."""
-    corners = vertices[triangles[faces]]
-    local = np.einsum("kj,kjd->kd", bary, corners)
-    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+def placer(obj, vertices, triangles, view):
+    """A function (faces, bary, pixels) -> world positions of those surface points of ``obj`` on
+    ``vertices``, raised along their faces' normals by ``pixels`` of screen; the object's matrices are
+    worked out once for all its patches."""
     M = np.array(obj.matrix_world)
-    world = local @ M[:3, :3].T + M[:3, 3]
-    normals = normals @ np.linalg.inv(M[:3, :3])  # normals transform by the inverse transpose
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
-    return (world + normals * pixel_size(world, view)[:, None] * pixels).astype(np.float32)
+    to_normals = np.linalg.inv(M[:3, :3])  # normals transform by the inverse transpose
+
+    def place(faces, bary, pixels: float) -> np.ndarray:
+        corners = vertices[triangles[faces]]
+        world = np.einsum("kj,kjd->kd", bary, corners) @ M[:3, :3].T + M[:3, 3]
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]) @ to_normals
+        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
+        return (world + normals * pixel_size(world, view)[:, None] * pixels).astype(np.float32)
+
+    return place
 
 
 def pixel_size(world, view) -> np.ndarray:
@@ -203,20 +208,15 @@ def draw_view() -> None:
         if vertices is None:
             continue
         patches, colors, loose = _patches(obj)
+        place = placer(obj, vertices, triangles, view)
         for points_of, color in loose:
-            points(
-                lifted(obj, vertices, triangles, points_of.faces, points_of.bary, view, POINT_LIFT),
-                POINT_SIZE,
-                color,
-            )
+            points(place(points_of.faces, points_of.bary, POINT_LIFT), POINT_SIZE, color)
         for name, faces, bary, axis_faces, axis_bary in patches:
-            points(lifted(obj, vertices, triangles, faces, bary, view, POINT_LIFT), POINT_SIZE, colors[name])
-            axis = lifted(obj, vertices, triangles, axis_faces, axis_bary, view, AXIS_LIFT)
+            points(place(faces, bary, POINT_LIFT), POINT_SIZE, colors[name])
+            axis = place(axis_faces, axis_bary, AXIS_LIFT)
             line(axis, AXIS_RIM, DARK)
             line(axis, AXIS_WIDTH, WHITE)
-            ends = lifted(
-                obj, vertices, triangles, axis_faces[[0, -1]], axis_bary[[0, -1]], view, MARKER_LIFT
-            )
+            ends = place(axis_faces[[0, -1]], axis_bary[[0, -1]], MARKER_LIFT)
             points(ends[1:], END_SIZE + 3.0, WHITE)
             points(ends[1:], END_SIZE, DARK)
             points(ends[:1], START_RIM, DARK)

@@ -103,7 +103,7 @@ def problem(scene: bpy.types.Scene, stage: str = "ALL") -> Problem:
         theta0=theta0,
         free=free_dofs(posed, armature, stage),
         pairs=tuple(pairs),
-        world_scale=float(np.linalg.norm(np.array(armature.matrix_world)[:3, 0])),
+        world_scale=bridge.uniform_scale(armature),
     )
 
 

@@ -70,9 +70,9 @@ def save(obj: bpy.types.Object, contacts: ContactSet, colors: dict | None = None
 
 
 def redraw(area_type: str | None = None) -> None:
-    """Redraw every editor (or every one of ``area_type``): Blender redraws a panel by itself when a
-    property it shows is set, not when a script rebuilds a collection (the patch list) or poses bones,
-    so the list would lag until the mouse passed over it."""
+    """Redraw every editor (or every one of ``area_type``). Blender redraws after an undoable operator
+    and when a property a panel shows is set, but not when a timer or a script rebuilds a collection
+    (the patch list) or poses bones."""
     for window in bpy.context.window_manager.windows:
         for area in window.screen.areas:
             if area_type is None or area.type == area_type:

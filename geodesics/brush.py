@@ -18,7 +18,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from .mesh import TriMesh
-from .points import SurfacePoints
+from .points import SurfacePoints, distances_to_faces
 from .sampling import surface_samples
 
 
@@ -55,12 +55,10 @@ class Dab:
     def region(self, mesh: TriMesh) -> np.ndarray:
         """(f,) the faces that meet the ball and connect to the hit face through faces that meet it."""
         centre = np.asarray(self.centre, np.float64)
-        corners = mesh.vertices[mesh.faces]
-        centroid = corners.mean(axis=1)
-        reach = np.linalg.norm(corners - centroid[:, None], axis=2).max(axis=1)
-        near = np.flatnonzero(np.linalg.norm(centroid - centre, axis=1) <= self.radius + reach)
-        closest = SurfacePoints.from_positions(mesh, near, np.broadcast_to(centre, (near.size, 3)))
-        gap = np.linalg.norm(closest.positions(mesh) - centre, axis=1)
+        near = np.flatnonzero(
+            np.linalg.norm(mesh.face_centroids - centre, axis=1) <= self.radius + mesh.face_radii
+        )
+        gap = distances_to_faces(mesh, np.zeros(near.size, np.int64), near, centre[None])
         meeting = np.union1d(near[gap <= self.radius], [self.face])
         inside = np.zeros(mesh.n_faces, bool)
         inside[meeting] = True

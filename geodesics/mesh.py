@@ -339,6 +339,17 @@ class TriMesh:
         return _readonly(np.abs(P[:, [1, 2, 0]] - P).ravel())
 
     @cached_property
+    def face_centroids(self) -> np.ndarray:
+        """(m, 3) the centroid of each face."""
+        return _readonly(self._vertices[self._faces].mean(axis=1))
+
+    @cached_property
+    def face_radii(self) -> np.ndarray:
+        """(m,) how far each face reaches from its centroid (no point of the face is farther)."""
+        corners = self._vertices[self._faces]
+        return _readonly(np.linalg.norm(corners - self.face_centroids[:, None], axis=2).max(axis=1))
+
+    @cached_property
     def mean_edge_length(self) -> float:
         return float(self.halfedge_lengths.mean())
 

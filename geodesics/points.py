@@ -110,19 +110,18 @@ class SurfacePoints:
         X = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         if not np.all(np.isfinite(X)):
             raise MeshError("positions contain NaN or infinite values")
-        T = mesh.vertices[mesh.faces]
-        centroid = T.mean(1)
-        reach = np.linalg.norm(T - centroid[:, None], axis=2).max()  # no point of a face is farther out
+        centroid = mesh.face_centroids
+        reach = mesh.face_radii.max()  # no point of any face is farther from its centroid
         tree = cKDTree(centroid)
         _, guess = tree.query(X, k=min(8, mesh.n_faces))
         guess = guess.reshape(len(X), -1)
-        bound = _distances_to_faces(mesh, np.repeat(np.arange(len(X)), guess.shape[1]), guess.ravel(), X)
+        bound = distances_to_faces(mesh, np.repeat(np.arange(len(X)), guess.shape[1]), guess.ravel(), X)
         bound = bound.reshape(len(X), -1).min(1)
         # Any face with a point within `bound` has its centroid within bound + reach.
         candidates = tree.query_ball_point(X, bound + reach)
         point = np.repeat(np.arange(len(X)), [len(c) for c in candidates])
         face = np.concatenate([np.asarray(c, np.int64) for c in candidates]) if len(X) else np.empty(0, int)
-        dist = _distances_to_faces(mesh, point, face, X)
+        dist = distances_to_faces(mesh, point, face, X)
         order = np.lexsort((dist, point))
         first = order[np.r_[True, point[order][1:] != point[order][:-1]]]
         return cls.from_positions(mesh, face[first], X[point[first]])
@@ -221,7 +220,7 @@ def _clamped_bary(P: np.ndarray, z: np.ndarray) -> np.ndarray:
     return b
 
 
-def _distances_to_faces(mesh: TriMesh, point: np.ndarray, face: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """Distance from X[point[i]] to triangle face[i]."""
+def distances_to_faces(mesh: TriMesh, point: np.ndarray, face: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(k,) the distance from position ``X[point[i]]`` to triangle ``face[i]`` (its closest point)."""
     closest = SurfacePoints.from_positions(mesh, face, X[point]).positions(mesh)
     return np.linalg.norm(closest - X[point], axis=1)

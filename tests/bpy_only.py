@@ -41,17 +41,18 @@ def python(name: str) -> Path:
 
 
 def interpreter(version: str) -> str | None:
-    """A Python of this version on this machine (on PATH, or installed by pyenv)."""
-    found = shutil.which(f"python{version}")
-    if found:
-        return found
-    root = (
-        subprocess.run(["pyenv", "root"], capture_output=True, text=True).stdout.strip()
-        if shutil.which("pyenv")
-        else ""
-    )
-    matches = sorted(glob.glob(os.path.join(root, "versions", f"{version}.*", "bin", f"python{version}")))
-    return matches[-1] if matches else None
+    """A Python of this version on this machine that runs (on PATH, or installed by pyenv; pyenv's shim
+    on PATH fails for a version that is not the selected one)."""
+    candidates = [shutil.which(f"python{version}")]
+    if shutil.which("pyenv"):
+        root = subprocess.run(["pyenv", "root"], capture_output=True, text=True).stdout.strip()
+        candidates += sorted(
+            glob.glob(os.path.join(root, "versions", f"{version}.*", "bin", f"python{version}"))
+        )
+    for candidate in filter(None, candidates):
+        if subprocess.run([candidate, "-c", "pass"], capture_output=True).returncode == 0:
+            return candidate
+    return None
 
 
 def create(name: str) -> Path:

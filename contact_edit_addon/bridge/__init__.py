@@ -23,6 +23,7 @@ from .mesh import (
     select_elements,
     selected_vertices,
     trimesh,
+    uniform_scale,
     world_to_object,
 )
 
@@ -44,5 +45,6 @@ __all__ = [
     "set_bone_rotation",
     "to_quaternion",
     "trimesh",
+    "uniform_scale",
     "world_to_object",
 ]

@@ -144,6 +144,12 @@ def points_from_hits(mesh: TriMesh, polygons: np.ndarray, locations: np.ndarray)
     return SurfacePoints(trial.faces[pick], trial.bary[pick])
 
 
+def uniform_scale(obj: bpy.types.Object) -> float:
+    """The object's scale factor (world length per object-space length; the cube root of the volume
+    scale, for objects scaled unevenly)."""
+    return float(abs(np.linalg.det(np.array(obj.matrix_world)[:3, :3])) ** (1.0 / 3.0))
+
+
 def world_to_object(obj: bpy.types.Object, points) -> np.ndarray:
     """World-space positions (k, 3) in the object's local space."""
     M = np.array(obj.matrix_world.inverted())

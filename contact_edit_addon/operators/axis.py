@@ -8,7 +8,7 @@ import bpy
 from geodesics import Axis, farthest_pair_axis, medial_axis
 
 from .. import store
-from .common import HotkeyTool, checked, guarded, mesh_object, nearest_point, need_patch, ray_hit
+from .common import HotkeyTool, guarded, mesh_object, nearest_point, need_patch, ray_hit
 
 
 class CONTACT_EDIT_OT_axis(HotkeyTool, bpy.types.Operator):
@@ -34,7 +34,6 @@ class CONTACT_EDIT_OT_axis(HotkeyTool, bpy.types.Operator):
 
     why_not = staticmethod(need_patch)
 
-    @checked
     def invoke(self, context, event):
         if self.method != "POINTS" or context.area is None or context.area.type != "VIEW_3D":
             return self.execute(context)
@@ -61,7 +60,6 @@ class CONTACT_EDIT_OT_axis(HotkeyTool, bpy.types.Operator):
                 return self.execute(context)
         return {"RUNNING_MODAL"}
 
-    @checked
     def execute(self, context):
         return guarded(self, lambda: self._set_axis(context))
 

@@ -14,6 +14,12 @@ from solver import SolverError
 
 from .. import bridge
 
+#: Events that move the view: the modal tools pass them through to Blender while waiting for a click.
+NAVIGATION = {
+    "MIDDLEMOUSE", "WHEELUPMOUSE", "WHEELDOWNMOUSE", "TRACKPADPAN", "TRACKPADZOOM", "MOUSEROTATE",
+    "NDOF_MOTION", "NUMPAD_1", "NUMPAD_2", "NUMPAD_3", "NUMPAD_4", "NUMPAD_5", "NUMPAD_6", "NUMPAD_7",
+    "NUMPAD_8", "NUMPAD_9", "NUMPAD_PERIOD",
+}  # fmt: skip
 #: Errors the libraries raise for bad input; the operators report them instead of failing.
 USER_ERRORS = (ContactError, GeodesicError, MeshError, SolverError, bridge.BridgeError)
 
@@ -100,10 +106,10 @@ def need_hand_and_object(context) -> str | None:
 
 
 def need_patch(context) -> str | None:
-    obj = context.active_object
-    if need_mesh(context) is None and not obj.contact_edit.patches:
-        return f"'{obj.name}' has no contact patches yet: paint one first"
-    return need_mesh(context)
+    reason = need_mesh(context)
+    if reason is None and not context.active_object.contact_edit.patches:
+        reason = f"'{context.active_object.name}' has no contact patches yet: paint one first"
+    return reason
 
 
 def poll_with(cls, reason: str | None) -> bool:
@@ -124,8 +130,9 @@ def poll_patch(cls, context) -> bool:
 
 class HotkeyTool:
     """For operators that a hotkey starts. When a hotkey's operator cannot run (its poll fails) Blender
-    does nothing at all, silently; these leave poll open instead and report why they cannot run, from
-    ``why_not(context)``, in the invoke and execute methods decorated with :func:`checked`."""
+    does nothing at all, silently; these leave poll open instead, and their ``invoke`` and ``execute``
+    (wrapped here, in every subclass that defines them) report ``why_not(context)`` as an error and
+    cancel when it gives a reason."""
 
     @classmethod
     def poll(cls, context):
@@ -135,10 +142,16 @@ class HotkeyTool:
     def why_not(context) -> str | None:
         return None
 
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        for name in ("invoke", "execute"):
+            if name in cls.__dict__:
+                setattr(cls, name, _checked(cls.__dict__[name]))
 
-def checked(method):
-    """Report the operator's ``why_not`` as an error and cancel, instead of running ``method`` (an
-    ``execute(self, context)`` or ``invoke(self, context, event)``: Blender checks the argument count)."""
+
+def _checked(method):
+    """``method`` (``execute(self, context)`` or ``invoke(self, context, event)``: Blender checks the
+    argument count) preceded by the ``why_not`` check."""
 
     def refused(self, context) -> set | None:
         reason = self.why_not(context)

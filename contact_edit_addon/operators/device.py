@@ -43,7 +43,7 @@ from ..device_session import (
     sessions,
     wait_for_device,
 )
-from .common import USER_ERRORS, HotkeyTool, checked
+from .common import USER_ERRORS, HotkeyTool
 
 #: Errors reported to the user instead of failing.
 DEVICE_ERRORS = (*USER_ERRORS, TangibleError)
@@ -258,7 +258,6 @@ class CONTACT_EDIT_OT_device_key(HotkeyTool, bpy.types.Operator):
             return f"No device is driving '{armature.name}': connect one in the Puppet Device panel first"
         return None
 
-    @checked
     def execute(self, context):
         return report_errors(self, lambda: self._key(context))
 

@@ -12,7 +12,16 @@ import math
 import bpy
 
 from .. import overlays, store
-from .common import USER_ERRORS, HotkeyTool, checked, guarded, mesh_object, nearest_point, need_patch, ray_hit
+from .common import (
+    NAVIGATION,
+    USER_ERRORS,
+    HotkeyTool,
+    guarded,
+    mesh_object,
+    nearest_point,
+    need_patch,
+    ray_hit,
+)
 
 
 class _PatchEdit(HotkeyTool):
@@ -34,7 +43,6 @@ class _PatchEdit(HotkeyTool):
         contacts[name]  # raises a clear error for an unknown name
         return obj, contacts, name
 
-    @checked
     def execute(self, context):
         def run():
             obj, contacts, name = self._target(context)
@@ -43,7 +51,6 @@ class _PatchEdit(HotkeyTool):
 
         return guarded(self, run)
 
-    @checked
     def invoke(self, context, event):
         if context.area is None or context.area.type != "VIEW_3D":
             return self.execute(context)
@@ -61,6 +68,8 @@ class _PatchEdit(HotkeyTool):
     def modal(self, context, event):
         if event.type in {"ESC", "RIGHTMOUSE"}:
             return self._finish(context, commit=False)
+        if event.type in NAVIGATION:
+            return {"PASS_THROUGH"}
         if event.type in {"LEFTMOUSE", "RET", "NUMPAD_ENTER"} and event.value == "PRESS":
             return self._finish(context, commit=True)
         if event.type == "MOUSEMOVE":
@@ -140,7 +149,6 @@ class CONTACT_EDIT_OT_bend(_PatchEdit, bpy.types.Operator):
     index: bpy.props.IntProperty(name="Axis point", min=1, default=1, description="Where the axis bends")
     angle: bpy.props.FloatProperty(name="Angle", subtype="ANGLE")
 
-    @checked
     def invoke(self, context, event):
         obj = mesh_object(context, self.object_name or None)
         try:

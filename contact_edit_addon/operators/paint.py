@@ -22,18 +22,12 @@ from geodesics import ContactError, ContactPatch, SurfacePoints, farthest_pair_a
 from geodesics.brush import Dab, erase, paint
 
 from .. import bridge, overlays, store
-from .common import HotkeyTool, checked, guarded, mesh_object, need_mesh, unique_name
+from .common import NAVIGATION, HotkeyTool, guarded, mesh_object, need_mesh, unique_name
 
 #: Brush dabs per radius of stroke length.
 DABS_PER_RADIUS = 3.0
 #: Square centimetres per square metre (the density is set per cm², the scene is in metres).
 CM2_PER_M2 = 1e4
-#: Events that move the view; they pass through to Blender while the brush waits for a stroke.
-NAVIGATION = {
-    "MIDDLEMOUSE", "WHEELUPMOUSE", "WHEELDOWNMOUSE", "TRACKPADPAN", "TRACKPADZOOM", "MOUSEROTATE",
-    "NDOF_MOTION", "NUMPAD_1", "NUMPAD_2", "NUMPAD_3", "NUMPAD_4", "NUMPAD_5", "NUMPAD_6", "NUMPAD_7",
-    "NUMPAD_8", "NUMPAD_9", "NUMPAD_PERIOD",
-}  # fmt: skip
 SUBTRACT_COLOR = (0.95, 0.2, 0.2, 1.0)
 
 
@@ -67,15 +61,10 @@ def shown_shape(obj):
         return bridge.trimesh(obj)
 
 
-def object_scale(obj) -> float:
-    """The object's uniform scale factor (world length per object-space length)."""
-    return float(abs(np.linalg.det(np.array(obj.matrix_world)[:3, :3])) ** (1.0 / 3.0))
-
-
 def local_density(context, obj) -> float:
     """The scene's brush density (points per cm² of world surface) per object-space unit area."""
     metres = context.scene.unit_settings.scale_length or 1.0
-    return context.scene.contact_edit.brush_density * CM2_PER_M2 * (metres * object_scale(obj)) ** 2
+    return context.scene.contact_edit.brush_density * CM2_PER_M2 * (metres * bridge.uniform_scale(obj)) ** 2
 
 
 class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
@@ -113,7 +102,6 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
 
     # ------------------------------------------------------------------ the brush, interactively
 
-    @checked
     def invoke(self, context, event):
         if self.source == "SELECTION" or context.area is None or context.area.type != "VIEW_3D":
             return self.execute(context)
@@ -121,8 +109,7 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
         self.stroke.clear()
         self._painting = False
         self._last = None
-        self._found: list = []
-        self._mesh = None
+        self._mesh = None  # the rest is set up by the first dab
         context.window.cursor_modal_set("CROSSHAIR")
         context.window_manager.modal_handler_add(self)
         self._show_brush(context, event)
@@ -204,27 +191,34 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
             self._preview(context, added)
 
     def _preview(self, context, items) -> None:
-        """Show what the stroke covers so far: the new points, or the active patch without the erased ones."""
+        """Show what the stroke covers so far, working only on its new dabs: the points painted, each
+        once, or the active patch without the points erased."""
         obj = self._object
         if self._mesh is None:
             self._mesh = shown_shape(obj)
             name = store.active_patch_name(obj)
             self._touched = (name, store.load(obj)[name]) if name is not None else None
+            self._kept = np.ones(len(self._touched[1]), bool) if self._touched else None
+            self._painted, self._ids = SurfacePoints.concatenate([]), np.empty(0, np.int64)
+        dabs = self._dabs(obj, self._mesh, items)[0]
         entries = {e.name: tuple(e.color) for e in obj.contact_edit.patches}
         if self.mode == "SUBTRACT":
             name, patch = self._touched
-            keep = erase(self._mesh, patch.points, self._dabs(obj, self._mesh, self.stroke)[0])
-            overlays.preview(obj, hidden={name}, loose=[(patch.points[np.flatnonzero(keep)], entries[name])])
-        else:
-            self._found.append(
-                paint(self._mesh, self._dabs(obj, self._mesh, items)[0], local_density(context, obj))[0]
+            self._kept &= erase(self._mesh, patch.points, dabs)
+            overlays.preview(
+                obj, hidden={name}, loose=[(patch.points[np.flatnonzero(self._kept)], entries[name])]
             )
+        else:
+            points, ids = paint(self._mesh, dabs, local_density(context, obj))
+            new = ~np.isin(ids, self._ids)
+            self._painted = SurfacePoints.concatenate([self._painted, points[np.flatnonzero(new)]])
+            self._ids = np.concatenate([self._ids, ids[new]])
             color = (
                 entries[self._touched[0]]
                 if self.mode == "ADD"
                 else store.PALETTE[len(entries) % len(store.PALETTE)]
             )
-            overlays.preview(obj, loose=[(points, color) for points in self._found])
+            overlays.preview(obj, loose=[(self._painted, color)])
         context.area.tag_redraw()
 
     def _end(self, context, status: set) -> set:
@@ -237,7 +231,6 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
 
     # ------------------------------------------------------------------ making the patch
 
-    @checked
     def execute(self, context):
         return guarded(self, lambda: self._paint(context))
 
@@ -249,7 +242,7 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
             return [], SurfacePoints(np.empty(0, np.int64), np.empty((0, 3)))
         hits = bridge.world_to_object(obj, [i.location for i in items])
         at = bridge.points_from_hits(mesh, [i.polygon for i in items], hits)
-        scale = object_scale(obj)
+        scale = bridge.uniform_scale(obj)
         eye = tuple(bridge.world_to_object(obj, self.eye)[0]) if any(self.eye) else None
         M = np.linalg.inv(np.array(obj.matrix_world)[:3, :3])
         direction = tuple(M @ np.array(self.view_direction)) if any(self.view_direction) and not eye else None
@@ -271,15 +264,14 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
         if self.source == "SELECTION":
             selected = bridge.points_from_vertices(obj, mesh, bridge.selected_vertices(obj))
             return self._new(context, obj, mesh, selected)
-        if self.mode != "NEW":
-            self._active(context, obj)  # refuses a transferred patch before any work
+        active = self._active(context, obj) if self.mode != "NEW" else None  # refused before any work
         shape = shown_shape(obj)
         dabs, single = self._dabs(obj, shape, self.stroke)
         if not dabs and not len(single):
             self.report({"ERROR"}, f"The stroke missed '{obj.name}': paint over its surface")
             return {"CANCELLED"}
         if self.mode == "SUBTRACT":
-            return self._subtract(context, obj, shape, dabs)
+            return self._subtract(context, obj, active, shape, dabs)
         painted = SurfacePoints.concatenate([paint(shape, dabs, local_density(context, obj))[0], single])
         if not len(painted):
             self.report(
@@ -289,7 +281,7 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
             )
             return {"CANCELLED"}
         if self.mode == "ADD":
-            return self._add(context, obj, painted)
+            return self._add(context, obj, active, painted)
         return self._new(context, obj, mesh, painted)
 
     def _new(self, context, obj, mesh, points):
@@ -305,8 +297,8 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
         )
         return {"FINISHED"}
 
-    def _add(self, context, obj, points):
-        contacts, name = self._active(context, obj)
+    def _add(self, context, obj, active, points):
+        contacts, name = active
         patch = contacts[name]
         grown = ContactPatch(contacts.mesh, SurfacePoints.concatenate([patch.points, points]), patch.axis)
         carried = self._carry(context, obj, contacts, name, lambda other: grown.mirrored_onto(other.axis))
@@ -314,8 +306,8 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
         self.report({"INFO"}, f"Added {len(points)} points to '{name}' (now {len(grown)}){carried}")
         return {"FINISHED"}
 
-    def _subtract(self, context, obj, shape, dabs):
-        contacts, name = self._active(context, obj)
+    def _subtract(self, context, obj, active, shape, dabs):
+        contacts, name = active
         patch = contacts[name]
         keep = erase(shape, patch.points, dabs)
         removed = int((~keep).sum())

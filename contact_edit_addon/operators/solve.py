@@ -13,17 +13,17 @@ import threading
 import bpy
 
 from .. import bridge, posing, preferences, store
-from .common import USER_ERRORS, HotkeyTool, checked, guarded, need_hand_and_object
+from .common import USER_ERRORS, HotkeyTool, guarded, need_hand_and_object
 
 #: Viewport refreshes per second while solving.
 REDRAW_RATE = 30.0
 
 
 def need_pairs(context) -> str | None:
-    settings = context.scene.contact_edit
-    if need_hand_and_object(context) is None and not any(e.pair for e in settings.hand.contact_edit.patches):
-        return f"No patch of '{settings.hand.name}' is paired yet: transfer one onto the object"
-    return need_hand_and_object(context)
+    hand, reason = context.scene.contact_edit.hand, need_hand_and_object(context)
+    if reason is None and not any(e.pair for e in hand.contact_edit.patches):
+        reason = f"No patch of '{hand.name}' is paired yet: transfer one onto the object"
+    return reason
 
 
 class CONTACT_EDIT_OT_solve(HotkeyTool, bpy.types.Operator):
@@ -41,7 +41,6 @@ class CONTACT_EDIT_OT_solve(HotkeyTool, bpy.types.Operator):
 
     why_not = staticmethod(need_pairs)
 
-    @checked
     def execute(self, context):
         return guarded(self, lambda: self._solve(context))
 
@@ -58,7 +57,6 @@ class CONTACT_EDIT_OT_solve(HotkeyTool, bpy.types.Operator):
 
     # ------------------------------------------------------------------ interactive
 
-    @checked
     def invoke(self, context, event):
         if context.area is None or context.window is None:
             return self.execute(context)
@@ -159,7 +157,6 @@ class CONTACT_EDIT_OT_flex_to_contact(HotkeyTool, bpy.types.Operator):
 
     why_not = staticmethod(need_hand_and_object)
 
-    @checked
     def execute(self, context):
         return guarded(self, lambda: self._flex(context))
 

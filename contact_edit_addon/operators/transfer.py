@@ -13,9 +13,9 @@ import numpy as np
 
 from .. import overlays, store
 from .common import (
+    NAVIGATION,
     USER_ERRORS,
     HotkeyTool,
-    checked,
     guarded,
     nearest_point,
     need_hand_and_object,
@@ -57,14 +57,13 @@ class CONTACT_EDIT_OT_transfer(HotkeyTool, bpy.types.Operator):
 
     @staticmethod
     def why_not(context) -> str | None:
-        settings = context.scene.contact_edit
-        if need_hand_and_object(context) is None and not settings.hand.contact_edit.patches:
-            return f"The hand '{settings.hand.name}' has no contact patches yet: paint one first"
-        return need_hand_and_object(context)
+        hand, reason = context.scene.contact_edit.hand, need_hand_and_object(context)
+        if reason is None and not hand.contact_edit.patches:
+            reason = f"The hand '{hand.name}' has no contact patches yet: paint one first"
+        return reason
 
     # ------------------------------------------------------------------ placing it with the mouse
 
-    @checked
     def invoke(self, context, event):
         if context.area is None or context.area.type != "VIEW_3D":
             return self.execute(context)
@@ -88,7 +87,7 @@ class CONTACT_EDIT_OT_transfer(HotkeyTool, bpy.types.Operator):
         if event.type == "TIMER":
             self._update_preview(context)
             return {"RUNNING_MODAL"}
-        if event.type in {"MIDDLEMOUSE", "WHEELUPMOUSE", "WHEELDOWNMOUSE", "TRACKPADPAN", "TRACKPADZOOM"}:
+        if event.type in NAVIGATION:
             return {"PASS_THROUGH"}
         hit = ray_hit(context, event, target) if event.type in {"MOUSEMOVE", "LEFTMOUSE"} else None
         if event.type == "LEFTMOUSE" and event.value == "PRESS" and hit is not None:
@@ -164,7 +163,6 @@ class CONTACT_EDIT_OT_transfer(HotkeyTool, bpy.types.Operator):
         colors = {f"{e.name}{self.suffix}": tuple(e.color) for e in settings.hand.contact_edit.patches}
         return hand_after, object_after, colors
 
-    @checked
     def execute(self, context):
         return guarded(self, lambda: self._transfer(context))
 

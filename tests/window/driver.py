@@ -49,11 +49,14 @@ class View:
     def project(self, world) -> np.ndarray:
         """(k, 2) screen pixels (x right, y down, as xdotool and screenshots count them) of world points;
         NaN where a point is behind the view."""
-        out = []
-        for co in np.asarray(world, float).reshape(-1, 3):
-            xy = view3d_utils.location_3d_to_region_2d(self.region, self.rv3d, co)
-            out.append((np.nan, np.nan) if xy is None else self.to_screen(xy))
-        return np.array(out, float).reshape(-1, 2)
+        X = np.asarray(world, float).reshape(-1, 3)
+        clip = (
+            np.c_[X, np.ones(len(X))] @ np.array(self.rv3d.perspective_matrix).T
+        )  # as location_3d_to_region_2d
+        w = np.where(clip[:, 3] > 0, clip[:, 3], np.nan)
+        half = np.array([self.region.width, self.region.height]) / 2
+        region_xy = half + half * clip[:, :2] / w[:, None]
+        return np.c_[self.region.x + region_xy[:, 0], self.window.height - (self.region.y + region_xy[:, 1])]
 
     def to_screen(self, region_xy) -> tuple[float, float]:
         """Region coordinates (from its bottom left) as screen pixels (from the window's top left)."""

@@ -4,13 +4,12 @@ and Ctrl to take away; then where the patch is drawn (Object Mode, posed, and on
 import bpy
 import numpy as np
 from common import (
+    bridge,
     example,
     finger_stroke,
     open_contact_tab,
     patch_points,
-    rest_vertices,
     shown_vertices,
-    world,
 )
 from mathutils import Euler, Vector
 
@@ -29,8 +28,8 @@ def steps(s):
     view = s.view3d()
     hand, _ = example(view)
     hand.parent.hide_set(True)  # its bones would hide parts of the patch from the view (and the test)
-    co = rest_vertices(hand)
-    tip = world(hand, co[np.argmax(co[:, 1])])[0]
+    co = bridge.mesh_arrays(hand.data)[0]
+    tip = bridge.object_to_world(hand, co[np.argmax(co[:, 1])])[0]
     view.rv3d.view_location = Vector(tip - [0.0, 0.02, 0.0])
     view.rv3d.view_distance = 0.12
     yield 0.5
@@ -92,7 +91,7 @@ def steps(s):
         bpy.ops.object.mode_set(mode="EDIT")
         bpy.ops.mesh.select_all(action="DESELECT")  # selected vertices are orange too
     yield 0.3
-    s.record("cage", project_patch(s, view, hand, name, rest_vertices(hand)))
+    s.record("cage", project_patch(s, view, hand, name, bridge.mesh_arrays(hand.data)[0]))
     yield from s.shot("edit_mode")
     with view.override():
         bpy.ops.object.mode_set(mode="OBJECT")

@@ -13,6 +13,10 @@ def addon(module: str):
     return importlib.import_module(f"bl_ext.user_default.contact_edit.{module}")
 
 
+#: The installed extension's Blender-to-numpy bridge (object_to_world, mesh_arrays, trimesh…).
+bridge = addon("bridge")
+
+
 def example(view) -> tuple[bpy.types.Object, bpy.types.Object]:
     """The default scene's cube gone, the Contact Edit example added and framed; (hand, mug)."""
     with view.override():
@@ -22,17 +26,6 @@ def example(view) -> tuple[bpy.types.Object, bpy.types.Object]:
         bpy.ops.contact_edit.add_example()
     settings = bpy.context.scene.contact_edit
     return settings.hand, settings.target
-
-
-def world(obj, local) -> np.ndarray:
-    M = np.array(obj.matrix_world)
-    return np.asarray(local, float).reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]
-
-
-def rest_vertices(obj) -> np.ndarray:
-    co = np.empty(3 * len(obj.data.vertices))
-    obj.data.vertices.foreach_get("co", co)
-    return co.reshape(-1, 3)
 
 
 def shown_vertices(obj) -> np.ndarray:
@@ -45,22 +38,22 @@ def shown_vertices(obj) -> np.ndarray:
 
 def finger_stroke(hand, view, back: float = 0.025, steps: int = 20) -> list[tuple[float, float]]:
     """Screen points from near the tip of the longest finger back along it by ``back`` metres."""
-    co = rest_vertices(hand)
+    co = bridge.mesh_arrays(hand.data)[0]
     tip = co[np.argmax(co[:, 1])]
     ring = co[(np.abs(co[:, 0] - tip[0]) < 0.008) & (np.abs(co[:, 1] - (tip[1] - back)) < 0.003)]
-    ends = world(hand, [tip + (ring.mean(0) - tip) * 0.15, ring.mean(0)])
+    ends = bridge.object_to_world(hand, [tip + (ring.mean(0) - tip) * 0.15, ring.mean(0)])
     (x0, y0), (x1, y1) = view.project(ends)
     return [(x0 + (x1 - x0) * t, y0 + (y1 - y0) * t) for t in np.linspace(0.0, 1.0, steps)]
 
 
 def patch_points(obj, name: str, vertices: np.ndarray) -> np.ndarray:
     """World positions of a stored patch's points and of its axis on the given object-space vertices."""
-    triangles = addon("bridge").trimesh(obj).faces
+    triangles = bridge.trimesh(obj).faces
     patch = next(p for p in json.loads(obj.contact_edit.data)["patches"] if p["name"] == name)
 
     def place(points):
         faces, bary = np.asarray(points["faces"]), np.asarray(points["bary"])
-        return world(obj, np.einsum("kj,kjd->kd", bary, vertices[triangles[faces]]))
+        return bridge.object_to_world(obj, np.einsum("kj,kjd->kd", bary, vertices[triangles[faces]]))
 
     return place(patch["points"]), place(patch["axis"]["points"])
 

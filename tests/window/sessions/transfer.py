@@ -6,14 +6,14 @@ import time
 
 import bpy
 import numpy as np
-from common import addon, example, open_contact_tab, rest_vertices, world
+from common import addon, bridge, example, open_contact_tab
 from mathutils import Vector
 
 
 def select_palm_side(hand, reach: float, width: float = 1.0) -> None:
     """The palm side of the fingers within ``reach`` metres of the longest finger's tip (and ``width``
     of it across), as the paint-from-selection tool takes them."""
-    co = rest_vertices(hand)
+    co = bridge.mesh_arrays(hand.data)[0]
     tip = co[np.argmax(co[:, 1])]
     pads = (
         (co[:, 1] > tip[1] - reach) & (np.abs(co[:, 0] - tip[0]) < width) & (co[:, 2] < np.median(co[:, 2]))
@@ -38,7 +38,7 @@ def steps(s):
         bpy.ops.contact_edit.paint(name="tip", source="SELECTION")
     s.record("hand_patches", [(e.name, e.points) for e in hand.contact_edit.patches])
     # Look at the mug's side facing away from the hand, and place the transfer there with the mouse.
-    centre = world(mug, rest_vertices(mug).mean(0))[0]
+    centre = bridge.object_to_world(mug, bridge.mesh_arrays(mug.data)[0].mean(0))[0]
     view.rv3d.view_location = Vector(centre)
     view.rv3d.view_distance = 0.3
     yield 0.4
