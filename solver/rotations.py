@@ -12,6 +12,9 @@ Conventions (those of Blender's ``mathutils`` and of pose bones' rotation modes)
   as Blender does for pose bones.
 * Axis-angle is ``(angle, x, y, z)`` (Blender's ``rotation_axis_angle``); the axis is normalized.
 
+Every function accepts float64 or complex128 arrays (complex-step differentiation, see :mod:`.analytic`):
+choices between solutions are made on real parts only.
+
 Conversions to matrices are exact to rounding; conversions from matrices return the representative
 Blender would: quaternions with ``w >= 0``, Euler angles in ``[-π, π]`` with the middle angle in
 ``[-π/2, π/2]``, or, given ``compatible`` angles, the equivalent set closest to them (as
@@ -22,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import analytic
 from .errors import SolverError
 
 #: Blender's Euler rotation modes.
@@ -29,6 +33,19 @@ EULER_ORDERS = ("XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX")
 
 #: Below this, the middle Euler angle is taken to be at ±π/2 (gimbal lock).
 GIMBAL_EPSILON = 1e-12
+
+
+def _array(x) -> np.ndarray:
+    """``x`` as float64, or as complex128 when it carries a complex step."""
+    x = np.asarray(x)
+    return x.astype(np.complex128 if np.iscomplexobj(x) else np.float64, copy=False)
+
+
+def _norm(v, axis: int = -1, keepdims: bool = False):
+    """Euclidean norm: numpy's on real arrays (unchanged results), :func:`analytic.norm` on complex ones."""
+    if np.iscomplexobj(v):
+        return analytic.norm(v, axis=axis, keepdims=keepdims)
+    return np.linalg.norm(v, axis=axis, keepdims=keepdims)
 
 
 def order_axes(order: str) -> tuple[int, int, int]:
@@ -40,9 +57,9 @@ def order_axes(order: str) -> tuple[int, int, int]:
 
 def axis_rotation(angle, axis: int) -> np.ndarray:
     """(..., 3, 3) rotation matrices by ``angle`` (...,) about coordinate axis ``axis`` (0, 1 or 2)."""
-    angle = np.asarray(angle, dtype=np.float64)
+    angle = _array(angle)
     c, s = np.cos(angle), np.sin(angle)
-    R = np.zeros((*angle.shape, 3, 3))
+    R = np.zeros((*angle.shape, 3, 3), dtype=angle.dtype)
     i1, i2 = (axis + 1) % 3, (axis + 2) % 3
     R[..., axis, axis] = 1.0
     R[..., i1, i1] = c
@@ -54,7 +71,7 @@ def axis_rotation(angle, axis: int) -> np.ndarray:
 
 def euler_to_matrix(angles, order: str = "XYZ") -> np.ndarray:
     """(..., 3, 3) rotation matrices of Euler angles (..., 3) ``(x, y, z)`` in the given order."""
-    a = np.asarray(angles, dtype=np.float64)
+    a = _array(angles)
     i, j, k = order_axes(order)
     return axis_rotation(a[..., k], k) @ axis_rotation(a[..., j], j) @ axis_rotation(a[..., i], i)
 
@@ -72,21 +89,24 @@ def matrix_to_euler(R, order: str = "XYZ", compatible=None) -> np.ndarray:
         Reference angles: of the two Euler solutions and their 2π shifts, the one closest to these is
         returned (the sum of absolute differences is minimized).
     """
-    M = np.asarray(R, dtype=np.float64)
+    M = _array(R)
     i, j, k = order_axes(order)
     s = 1.0 if (j - i) % 3 == 1 else -1.0
-    cos_b = np.hypot(M[..., i, i], M[..., j, i])
-    b = np.arctan2(-s * M[..., k, i], cos_b)
-    a = np.arctan2(s * M[..., k, j], M[..., k, k])
-    c = np.arctan2(s * M[..., j, i], M[..., i, i])
-    locked = cos_b < GIMBAL_EPSILON
+    if np.iscomplexobj(M):
+        cos_b = analytic.norm(np.stack([M[..., i, i], M[..., j, i]], -1))
+    else:
+        cos_b = np.hypot(M[..., i, i], M[..., j, i])
+    b = analytic.atan2(-s * M[..., k, i], cos_b)
+    a = analytic.atan2(s * M[..., k, j], M[..., k, k])
+    c = analytic.atan2(s * M[..., j, i], M[..., i, i])
+    locked = cos_b.real < GIMBAL_EPSILON
     if np.any(locked):
         # Only a + c (or a - c) is defined: put all of it in the first angle.
         rest = np.swapaxes(axis_rotation(b, j), -1, -2) @ M
         i1, i2 = (i + 1) % 3, (i + 2) % 3
-        a = np.where(locked, np.arctan2(rest[..., i2, i1], rest[..., i1, i1]), a)
+        a = np.where(locked, analytic.atan2(rest[..., i2, i1], rest[..., i1, i1]), a)
         c = np.where(locked, 0.0, c)
-    first = np.zeros(M.shape[:-1])
+    first = np.zeros(M.shape[:-1], dtype=M.dtype)
     first[..., i], first[..., j], first[..., k] = a, b, c
     if compatible is None:
         return first
@@ -96,20 +116,20 @@ def matrix_to_euler(R, order: str = "XYZ", compatible=None) -> np.ndarray:
     ref = np.broadcast_to(np.asarray(compatible, dtype=np.float64), first.shape)
     best = []
     for candidate in (first, second):
-        shifted = candidate + 2 * np.pi * np.round((ref - candidate) / (2 * np.pi))
+        shifted = candidate + 2 * np.pi * np.round((ref - candidate.real) / (2 * np.pi))
         best.append(shifted)
-    cost = [np.abs(x - ref).sum(-1) for x in best]
+    cost = [np.abs(x.real - ref).sum(-1) for x in best]
     return np.where((cost[1] < cost[0])[..., None], best[1], best[0])
 
 
 def quaternion_to_matrix(q) -> np.ndarray:
     """(..., 3, 3) rotation matrices of quaternions (..., 4) ``(w, x, y, z)`` (normalized first)."""
-    q = np.asarray(q, dtype=np.float64)
-    norm = np.linalg.norm(q, axis=-1, keepdims=True)
-    if np.any(norm == 0) or not np.all(np.isfinite(q)):
+    q = _array(q)
+    norm = _norm(q, axis=-1, keepdims=True)
+    if np.any(norm.real == 0) or not np.all(np.isfinite(q)):
         raise SolverError("quaternions must be finite and nonzero")
     w, x, y, z = np.moveaxis(q / norm, -1, 0)
-    R = np.empty((*w.shape, 3, 3))
+    R = np.empty((*w.shape, 3, 3), dtype=q.dtype)
     R[..., 0, 0] = 1 - 2 * (y * y + z * z)
     R[..., 0, 1] = 2 * (x * y - w * z)
     R[..., 0, 2] = 2 * (x * z + w * y)
@@ -124,7 +144,7 @@ def quaternion_to_matrix(q) -> np.ndarray:
 
 def matrix_to_quaternion(R) -> np.ndarray:
     """(..., 4) unit quaternions ``(w, x, y, z)`` with ``w >= 0`` of rotation matrices (..., 3, 3)."""
-    M = np.asarray(R, dtype=np.float64)
+    M = _array(R)
     # Shepperd's method: build from the largest of the four squared components.
     t = np.stack(
         [
@@ -135,7 +155,7 @@ def matrix_to_quaternion(R) -> np.ndarray:
         ],
         -1,
     )
-    pick = np.argmax(t, axis=-1)
+    pick = np.argmax(t.real, axis=-1)
     d21, d02, d10 = M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]
     s21, s02, s10 = M[..., 2, 1] + M[..., 1, 2], M[..., 0, 2] + M[..., 2, 0], M[..., 1, 0] + M[..., 0, 1]
     candidates = np.stack(
@@ -148,16 +168,16 @@ def matrix_to_quaternion(R) -> np.ndarray:
         -2,
     )
     q = np.take_along_axis(candidates, pick[..., None, None], axis=-2)[..., 0, :]
-    q /= np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where(q[..., :1] < 0, -q, q)
+    q = q / _norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1].real < 0, -q, q)
 
 
 def axis_angle_to_matrix(axis_angle) -> np.ndarray:
     """(..., 3, 3) rotation matrices of ``(angle, x, y, z)`` (..., 4) (Blender's axis-angle mode)."""
-    aa = np.asarray(axis_angle, dtype=np.float64)
+    aa = _array(axis_angle)
     angle, axis = aa[..., 0], aa[..., 1:]
-    norm = np.linalg.norm(axis, axis=-1, keepdims=True)
-    if np.any(norm == 0) or not np.all(np.isfinite(aa)):
+    norm = _norm(axis, axis=-1, keepdims=True)
+    if np.any(norm.real == 0) or not np.all(np.isfinite(aa)):
         raise SolverError("axis-angle rotations need a finite angle and a finite nonzero axis")
     half = 0.5 * angle[..., None]
     q = np.concatenate([np.cos(half), np.sin(half) * axis / norm], -1)
@@ -170,8 +190,8 @@ def matrix_to_axis_angle(R) -> np.ndarray:
     The identity gives angle 0 about +y (Blender's default axis).
     """
     q = matrix_to_quaternion(R)
-    sin_half = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
-    angle = 2 * np.arctan2(sin_half[..., 0], q[..., 0])
-    axis = np.divide(q[..., 1:], sin_half, out=np.zeros_like(q[..., 1:]), where=sin_half > 0)
-    axis[sin_half[..., 0] == 0] = (0.0, 1.0, 0.0)
+    sin_half = _norm(q[..., 1:], axis=-1, keepdims=True)
+    angle = 2 * analytic.atan2(sin_half[..., 0], q[..., 0])
+    axis = np.divide(q[..., 1:], sin_half, out=np.zeros_like(q[..., 1:]), where=sin_half.real > 0)
+    axis[sin_half[..., 0].real == 0] = (0.0, 1.0, 0.0)
     return np.concatenate([angle[..., None], axis], -1)

@@ -1,0 +1,86 @@
+"""Exact first derivatives of numpy code by complex-step differentiation.
+
+Evaluating ``f(x + i h e_j)`` with a tiny ``h`` gives ``f(x)`` in the real part and ``h ∂f/∂x_j`` in the
+imaginary part, to rounding (there is no subtraction, so no cancellation, and the truncation error is
+``O(h²)``, which vanishes in float64 for ``h = STEP``). It is forward-mode differentiation carried by
+numpy's complex arithmetic: the same code computes values (on real arrays) and exact derivatives (on
+complex arrays, one batch entry per direction), which is how the solver differentiates the long chains
+of Blender's constraint and B-Bone math.
+
+The code being differentiated must be analytic in its inputs:
+
+* use ``+ - * / @``, ``sqrt``, ``exp``, ``log``, ``sin``, ``cos``, ``np.linalg.inv``, ``det``;
+* take norms with :func:`norm` (``sqrt(Σ v²)``), never ``abs``, ``np.linalg.norm`` or ``conj``;
+* angles with :func:`atan2` and :func:`acos` here (numpy's ``arctan2`` refuses complex input);
+* branch, compare, clip and pick maxima on ``.real`` only, and never ``np.linalg.svd``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: The imaginary step: far below float64 resolution of any value, far above its underflow.
+STEP = 1e-30
+
+
+def directions(x: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """(k, n) complex: x (n,) with an imaginary step on one free entry per row (k = free entries)."""
+    x = np.asarray(x, dtype=np.float64)
+    index = np.flatnonzero(free)
+    X = np.repeat(x[None].astype(np.complex128), max(index.size, 1), axis=0)
+    X[np.arange(index.size), index] += 1j * STEP
+    return X
+
+
+def value(y: np.ndarray) -> np.ndarray:
+    """The value carried by a complex-step result: the real part of its first direction."""
+    y = np.asarray(y)
+    return (y[0].real if np.iscomplexobj(y) else y[0]).copy()
+
+
+def derivative(y: np.ndarray) -> np.ndarray:
+    """(k, ...) the derivative along each direction of a complex-step result (k, ...)."""
+    y = np.asarray(y)
+    return y.imag / STEP if np.iscomplexobj(y) else np.zeros(y.shape)
+
+
+def norm(v, axis: int = -1, keepdims: bool = False):
+    """Euclidean norm ``sqrt(Σ v²)`` along ``axis``, analytic in complex-step inputs."""
+    v = np.asarray(v)
+    return np.sqrt(np.sum(v * v, axis=axis, keepdims=keepdims))
+
+
+def atan2(y, x):
+    """``arctan2`` of real or complex-step arrays (the derivative ``(x dy - y dx) / (x² + y²)``)."""
+    y, x = np.asarray(y), np.asarray(x)
+    angle = np.arctan2(y.real, x.real)
+    if not (np.iscomplexobj(y) or np.iscomplexobj(x)):
+        return angle
+    r2 = x.real**2 + y.real**2
+    slope = np.divide(
+        x.real * y.imag - y.real * x.imag, r2, out=np.zeros(np.broadcast(x, y).shape), where=r2 > 0
+    )
+    return angle + 1j * slope
+
+
+def acos(x):
+    """``arccos`` clamped to [-1, 1] (Blender's ``saacos``); clamped entries have zero derivative.
+
+    numpy's complex ``arccos`` loses an imaginary part this small, so the derivative is applied here.
+    """
+    return _clamped(np.arccos, -1.0, x)
+
+
+def asin(x):
+    """``arcsin`` clamped to [-1, 1] (Blender's ``saasin``); clamped entries have zero derivative."""
+    return _clamped(np.arcsin, 1.0, x)
+
+
+def _clamped(f, sign: float, x):
+    x = np.asarray(x)
+    angle = f(np.clip(x.real, -1.0, 1.0))
+    if not np.iscomplexobj(x):
+        return angle
+    inside = np.abs(x.real) < 1
+    slope = np.divide(sign * x.imag, np.sqrt(1 - x.real**2, where=inside, out=np.ones(x.shape)))
+    return angle + 1j * np.where(inside, slope, 0.0)
