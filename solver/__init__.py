@@ -2,6 +2,9 @@
 
 * :class:`Rig` — Blender-exact armatures: bone rest matrices, Euler-angle DOFs, limits, forward kinematics.
 * :class:`SkinnedMesh` — Blender's linear blend skinning with analytic derivatives.
+* :class:`Armature` and :class:`ControlRig` — production rigs (Rigify) posed through their controls:
+  constraints, drivers and B-Bones as Blender evaluates them (:mod:`solver.controls`, :mod:`solver.bones`,
+  :mod:`solver.constraints`, :mod:`solver.bbone`), with exact derivatives (:mod:`solver.analytic`).
 * :class:`ContactIK` — Eq. 2 of Contact Edit (plus the markers, table and keyed-pose terms of the
   retargeting paper), solved with NLopt; :class:`Weights`, :class:`SolveResult`.
 * :mod:`solver.hands` and :mod:`solver.objects` — procedural rigged hands and closed test objects.
@@ -9,6 +12,8 @@
 """
 
 from . import hands, objects
+from .control_rig import ControlRig
+from .controls import Armature, Plan
 from .errors import SolverError
 from .grasp import GraspResult, flex_to_contact, grasp
 from .ik import ContactIK, Markers, Progress, SolveResult, Weights
@@ -17,13 +22,16 @@ from .sdf import Box, HalfSpace, MeshSDF
 from .skinning import SkinnedMesh, normalize_vertex_groups
 
 __all__ = [
+    "Armature",
     "Box",
     "ContactIK",
+    "ControlRig",
     "GraspResult",
     "HalfSpace",
     "Kinematics",
     "Markers",
     "MeshSDF",
+    "Plan",
     "Progress",
     "Rig",
     "SkinnedMesh",

@@ -229,7 +229,7 @@ def grasp(
     sdf = _as_sdf(target)
     tol = RELATIVE_TOLERANCE * hand.size if tolerance is None else float(tolerance)
     names = list(hand.chains) if chains is None else list(chains)
-    owner = np.asarray(hand.weights.argmax(axis=1)).ravel()  # each vertex's dominant bone
+    owner = rig.deform_owner[np.asarray(hand.weights.argmax(axis=1)).ravel()]  # each vertex's posed bone
     touching, evaluations = {}, 0
     for name in names:
         if name not in hand.chains:

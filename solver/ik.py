@@ -41,6 +41,7 @@ six times SLSQP's. All four are available (see :data:`ALGORITHMS`).
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -138,8 +139,10 @@ class SolveResult:
     start_energy : float
         The energy of the (clipped) start pose.
     status : str
-        ``"converged"``, ``"max evaluations"``, ``"cancelled"`` or ``"stopped"`` (NLopt gave up, e.g.
-        on round-off; the best pose is still returned).
+        ``"converged"``, ``"max evaluations"``, ``"cancelled"``, ``"stopped"`` (NLopt gave up, e.g.
+        on round-off; the best pose is still returned), ``"no free DOFs"`` (nothing was allowed to move)
+        or ``"unchanged"`` (the optimizer ended where it started: a solve that moved nothing never
+        reports convergence).
     """
 
     theta: np.ndarray
@@ -283,12 +286,13 @@ class ContactIK:
 
     # ------------------------------------------------------------------ objective
 
-    def energy(self, theta, with_gradient: bool = True):
-        """Energy at θ (d,), its terms (dict), and (unless ``with_gradient`` is False) dE/dθ (d,)."""
+    def energy(self, theta, with_gradient: bool = True, dofs=None):
+        """Energy at θ (d,), its terms (dict), and (unless ``with_gradient`` is False) dE/dθ (d,): exact
+        for the DOFs ``dofs`` (default all); a rig may leave the others' derivatives out (zero)."""
         rig = self.hand.rig
         t = rig.check_theta(theta)
         w = self.weights
-        kin = rig._kinematics(t, with_gradient)
+        kin = rig.kinematics(t, with_gradient, dofs)
         skin = self._skin
         V = skin.vertices.positions(kin)
         terms: dict[str, float] = {}
@@ -381,7 +385,8 @@ class ContactIK:
         index = np.flatnonzero(mask)
         start_energy, start_terms = self.energy(theta, with_gradient=False)
         final, energy, terms, count, status = minimize(
-            self.energy, theta, index, self._scale[index], rig, self.algorithm, max_evaluations, ftol_rel,
+            functools.partial(self.energy, dofs=index), theta, index, self._scale[index], rig, self.algorithm,
+            max_evaluations, ftol_rel,
             gradient=self.gradient, progress=progress, start=(start_energy, start_terms),
         )  # fmt: skip
         return SolveResult(
@@ -451,7 +456,7 @@ def minimize(
             raise nlopt.ForcedStop
         return e
 
-    status = "converged"
+    status = "converged" if index.size else "no free DOFs"
     if index.size:
         opt = nlopt.opt(ALGORITHMS[algorithm], index.size)
         opt.set_lower_bounds(rig.lower[index] / scale)
@@ -467,6 +472,8 @@ def minimize(
             status = "cancelled" if cancelled[0] else "stopped"
         except (nlopt.RoundoffLimited, RuntimeError):
             status = "stopped"
+    if status == "converged" and np.array_equal(best["theta"], theta):
+        status = "unchanged"
     return best["theta"], float(best["energy"]), dict(best["terms"]), count[0], status
 
 

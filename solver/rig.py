@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
+from scipy import sparse
 
 from .errors import SolverError, describe_ids
 from .rotations import EULER_ORDERS, axis_rotation, matrix_to_euler, order_axes
@@ -44,6 +45,15 @@ MIN_RELATIVE_LENGTH = 1e-9
 def _readonly(a: np.ndarray) -> np.ndarray:
     a.setflags(write=False)
     return a
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross products of (k, 3) arrays (numpy's general ``cross`` is several times slower)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape), dtype=np.result_type(a, b))
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
 
 
 def into_limits(theta, is_rotation, lower, upper) -> np.ndarray:
@@ -65,10 +75,11 @@ def into_limits(theta, is_rotation, lower, upper) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Kinematics:
-    """Forward kinematics of one pose, with what the analytic derivatives need.
+    """Forward kinematics of one pose of a :class:`Rig`, with what the analytic derivatives need.
 
     Attributes
     ----------
+    rig : Rig
     matrices : (b, 4, 4)
         Posed armature-space bone matrices (Blender's ``pose_bone.matrix``).
     skinning : (b, 3, 4)
@@ -80,10 +91,50 @@ class Kinematics:
         Per rotation DOF, the pivot (the posed bone head); zero for translation DOFs.
     """
 
+    rig: Rig
     matrices: np.ndarray
     skinning: np.ndarray
     axes: np.ndarray
     origins: np.ndarray
+
+    def pullback(self, sums: np.ndarray) -> np.ndarray:
+        """(d,) ``Σ_b <dS_b/dθ, sums_b>``: the gradient of a function of the skinning matrices S (b, 3, 4)
+        whose gradient with respect to them is ``sums`` (b, 3, 4).
+
+        A rotation DOF turns bone b's downstream points about its axis ω through its pivot o, so
+        ``dS_b/dθ = [ω]x (S_b - o e_4^T)`` on the DOF's subtree and the sum reduces to per-bone torques
+        and forces accumulated up the tree: O(bones + DOFs).
+        """
+        rig = self.rig
+        f = sums[:, :, 3]  # (b, 3) per-bone force
+        RC = self.skinning[:, :, :3] @ sums[:, :, :3].transpose(0, 2, 1)
+        tau = np.stack([RC[:, 1, 2] - RC[:, 2, 1], RC[:, 2, 0] - RC[:, 0, 2], RC[:, 0, 1] - RC[:, 1, 0]], 1)
+        tau += cross(self.skinning[:, :, 3], f)
+        D = rig.subtree.T.astype(np.float64)
+        F, T = D @ f, D @ tau
+        bone = rig.dof_bone
+        moment = T[bone] - cross(self.origins, F[bone])
+        moment[:3] = F[0]
+        return np.einsum("di,di->d", self.axes, moment)
+
+    def jacobian(self, weights: np.ndarray, rest: np.ndarray) -> np.ndarray:
+        """(m, 3, d) derivatives of the points ``Σ_b weights[v, b] S_b [rest_v; 1]`` (weights (m, b) dense,
+        rest (m, 3)) with respect to θ."""
+        rig = self.rig
+        D = rig.subtree.astype(np.float64)
+        # Blended skinning matrices of each bone's subtree, per point: (m, b, 3, 4).
+        M = np.einsum("vb,bc,bk->vck", weights, D, self.skinning.reshape(-1, 12)).reshape(
+            len(weights), -1, 3, 4
+        )
+        Y = np.einsum("vcij,vj->vci", M[..., :3], rest) + M[..., 3]
+        Wsub = weights @ D
+        bone = rig.dof_bone
+        J = np.empty((len(weights), 3, rig.n_dofs))
+        J[:, :, :3] = Wsub[:, 0, None, None] * self.axes[:3].T[None]
+        rot = np.flatnonzero(rig.is_rotation)
+        lever = Y[:, bone[rot]] - Wsub[:, bone[rot], None] * self.origins[rot][None]
+        J[:, :, rot] = np.cross(self.axes[rot][None], lever).transpose(0, 2, 1)
+        return J
 
 
 class Rig:
@@ -314,6 +365,20 @@ class Rig:
         return 6 + 3 * (self.n_bones - 1)
 
     @property
+    def deform_bones(self) -> tuple[str, ...]:
+        """The bones a skin's weights name, one column each: every bone of the rig."""
+        return self.names
+
+    @property
+    def deform_owner(self) -> np.ndarray:
+        """(b,) the posed bone that moves each deform bone: each bone itself."""
+        return np.arange(self.n_bones)
+
+    def segment_weights(self, weights, rest_vertices) -> sparse.csr_matrix:
+        """Weights per skinning matrix: a plain rig's bones each have one, so the weights themselves."""
+        return sparse.csr_matrix(weights)
+
+    @property
     def rest(self) -> np.ndarray:
         """(d,) the rest pose: all zeros (identity ``matrix_basis`` for every bone)."""
         return np.zeros(self.n_dofs)
@@ -452,8 +517,9 @@ class Rig:
         """(b, 4, 4) posed armature-space bone matrices (Blender's ``pose_bone.matrix``)."""
         return self.kinematics(theta, derivatives=False).matrices
 
-    def kinematics(self, theta, derivatives: bool = True) -> Kinematics:
-        """Forward kinematics of θ (d,), with the DOF axes and pivots unless ``derivatives`` is False."""
+    def kinematics(self, theta, derivatives: bool = True, dofs=None) -> Kinematics:
+        """Forward kinematics of θ (d,), with the DOF axes and pivots unless ``derivatives`` is False
+        (for every DOF: they cost next to nothing here, so ``dofs`` is accepted and ignored)."""
         return self._kinematics(self.check_theta(theta), derivatives)
 
     def _kinematics(self, t: np.ndarray, derivatives: bool) -> Kinematics:
@@ -489,4 +555,4 @@ class Rig:
                 axes[self._rot_dof[bones, j]] = QRk[:, :, j]
                 axes[self._rot_dof[bones, i]] = (QRk @ axis_rotation(angles[bones, j], j))[:, :, i]
             origins[3:] = np.repeat(before[:, :3, 3], 3, axis=0)
-        return Kinematics(matrices=P, skinning=skin, axes=axes, origins=origins)
+        return Kinematics(rig=self, matrices=P, skinning=skin, axes=axes, origins=origins)

@@ -29,8 +29,9 @@ from scipy import sparse
 from geodesics import SurfacePoints, TriMesh
 from geodesics.errors import MeshError
 
+from .control_rig import ControlRig
 from .errors import SolverError, describe_ids
-from .rig import Kinematics, Rig
+from .rig import Kinematics, Rig, cross
 
 #: Row sums of normalized weights may miss one by this much.
 WEIGHT_TOLERANCE = 1e-6
@@ -92,9 +93,12 @@ class SkinnedMesh:
     ----------
     mesh : TriMesh
         The rest mesh, in armature space.
-    rig : Rig
-    weights : (n_vertices, n_bones) array_like or scipy sparse matrix
-        Non-negative, each row summing to one (or all zero: a vertex no bone moves).
+    rig : Rig or ControlRig
+        The bones that deform it: a plain :class:`~solver.rig.Rig`, or a production rig's hand posed
+        through its controls (:class:`~solver.controls.ControlRig`, whose B-Bones deform by segments).
+    weights : (n_vertices, n_deform_bones) array_like or scipy sparse matrix
+        Non-negative, each row summing to one (or all zero: a vertex no bone moves); one column per
+        ``rig.deform_bones``.
 
     Raises
     ------
@@ -102,16 +106,16 @@ class SkinnedMesh:
         For a shape mismatch, NaN, negative or unnormalized weights (naming the vertices).
     """
 
-    def __init__(self, mesh: TriMesh, rig: Rig, weights):
+    def __init__(self, mesh: TriMesh, rig: Rig | ControlRig, weights):
         if not isinstance(mesh, TriMesh):
             raise SolverError(f"mesh must be a geodesics.TriMesh, got {type(mesh).__name__}")
-        if not isinstance(rig, Rig):
-            raise SolverError(f"rig must be a solver.Rig, got {type(rig).__name__}")
+        if not isinstance(rig, (Rig, ControlRig)):
+            raise SolverError(f"rig must be a solver.Rig or ControlRig, got {type(rig).__name__}")
         W = _as_csr(weights)
-        if W.shape != (mesh.n_vertices, rig.n_bones):
+        if W.shape != (mesh.n_vertices, len(rig.deform_bones)):
             raise SolverError(
                 f"skin weights must have shape (n_vertices, n_bones) = ({mesh.n_vertices}, "
-                f"{rig.n_bones}), got {W.shape}"
+                f"{len(rig.deform_bones)}), got {W.shape}"
             )
         _check_nonnegative(W)
         total = np.asarray(W.sum(axis=1)).ravel()
@@ -125,6 +129,8 @@ class SkinnedMesh:
         self.mesh = mesh
         self.rig = rig
         self.weights = normalize_vertex_groups(W)
+        #: (n_vertices, s) the weights per deformer (a B-Bone's split between its segments).
+        self.deformer_weights = rig.segment_weights(self.weights, mesh.vertices)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.mesh!r}, {self.rig.n_bones} bones, {self.rig.n_dofs} DOFs)"
@@ -210,7 +216,7 @@ class VertexSkin:
         self.rig = skin.rig
         self.vertex_ids = ids
         self.rest = skin.mesh.vertices[ids]
-        self.weights = sparse.csr_matrix(skin.weights[ids])
+        self.weights = sparse.csr_matrix(skin.deformer_weights[ids])
         self._weights_t = sparse.csr_matrix(self.weights.T)
         self._static = np.flatnonzero(np.asarray(self.weights.sum(axis=1)).ravel() == 0)  # no bone moves them
 
@@ -224,62 +230,22 @@ class VertexSkin:
         X[self._static] = self.rest[self._static]
         return X
 
-    def jacobian(self, kin: Kinematics) -> np.ndarray:
+    def jacobian(self, kin) -> np.ndarray:
         """(m, 3, d) derivatives of the posed positions with respect to θ."""
-        rig = self.rig
-        W = self.weights.toarray()
-        D = rig.subtree.astype(np.float64)
-        # Blended skinning matrices of each bone's subtree, per vertex: (m, b, 3, 4).
-        M = np.einsum("vb,bc,bk->vck", W, D, kin.skinning.reshape(-1, 12)).reshape(len(W), -1, 3, 4)
-        Y = np.einsum("vcij,vj->vci", M[..., :3], self.rest) + M[..., 3]
-        Wsub = W @ D
-        bone = rig.dof_bone
-        J = np.empty((len(W), 3, rig.n_dofs))
-        J[:, :, :3] = Wsub[:, 0, None, None] * kin.axes[:3].T[None]
-        rot = np.flatnonzero(rig.is_rotation)
-        lever = Y[:, bone[rot]] - Wsub[:, bone[rot], None] * kin.origins[rot][None]
-        J[:, :, rot] = np.cross(kin.axes[rot][None], lever).transpose(0, 2, 1)  # (m, 3, rotation DOFs)
-        return J
+        return kin.jacobian(self.weights.toarray(), self.rest)
 
-    def vjp(self, kin: Kinematics, adjoint: np.ndarray) -> np.ndarray:
+    def vjp(self, kin, adjoint: np.ndarray) -> np.ndarray:
         """(d,) ``sum_v adjoint[v] . dposition[v]/dθ`` for an adjoint (m, 3), without the Jacobian."""
-        return self._dof_gradient(kin, self._bone_sums(adjoint))
+        return kin.pullback(self.deformer_sums(adjoint))
 
-    def _bone_sums(self, adjoint: np.ndarray) -> np.ndarray:
-        """(4b, 3) per-bone sums of an adjoint (m, 3): rows ``j b + i`` hold ``sum_v w[v, b] rest[v, j]
-        adjoint[v]`` for j < 3 and, for j = 3, ``sum_v w[v, b] adjoint[v]``."""
-        nb = self.rig.n_bones
-        R = np.empty((4 * nb, 3))
-        R[3 * nb :] = self._weights_t @ adjoint
+    def deformer_sums(self, adjoint: np.ndarray) -> np.ndarray:
+        """(s, 3, 4) per-deformer sums ``Σ_v w[v, s] adjoint[v] [rest[v]; 1]^T`` of an adjoint (m, 3): the
+        gradient, with respect to each skinning matrix, of a function of the posed positions."""
+        G = np.empty((self.weights.shape[1], 3, 4))
+        G[:, :, 3] = self._weights_t @ adjoint
         for j in range(3):
-            R[j * nb : (j + 1) * nb] = self._weights_t @ (self.rest[:, j, None] * adjoint)
-        return R
-
-    def _dof_gradient(self, kin: Kinematics, sums: np.ndarray) -> np.ndarray:
-        """(d,) the gradient from the per-bone sums of :meth:`_bone_sums`."""
-        rig = self.rig
-        nb = rig.n_bones
-        f = sums[3 * nb :]  # (b, 3) per-bone force
-        C = sums[: 3 * nb].reshape(3, nb, 3).transpose(1, 0, 2)  # (b, 3, 3): sum_v w x_v adjoint_v^T
-        RC = kin.skinning[:, :, :3] @ C
-        tau = np.stack([RC[:, 1, 2] - RC[:, 2, 1], RC[:, 2, 0] - RC[:, 0, 2], RC[:, 0, 1] - RC[:, 1, 0]], 1)
-        tau += cross(kin.skinning[:, :, 3], f)
-        D = rig.subtree
-        F = D.T.astype(np.float64) @ f
-        T = D.T.astype(np.float64) @ tau
-        bone = rig.dof_bone
-        moment = T[bone] - cross(kin.origins, F[bone])
-        moment[:3] = F[0]
-        return np.einsum("di,di->d", kin.axes, moment)
-
-
-def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross products of (k, 3) arrays (numpy's general ``cross`` is several times slower)."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
-    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
-    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-    return out
+            G[:, :, j] = self._weights_t @ (self.rest[:, j, None] * adjoint)
+        return G
 
 
 class PointSet:
