@@ -204,6 +204,37 @@ class CONTACT_EDIT_OT_add_example(bpy.types.Operator):
         return {"FINISHED"}
 
 
+class CONTACT_EDIT_OT_add_rigify_hand(bpy.types.Operator):
+    """Add a Rigify human whose right hand is the procedural hand, skinned with automatic weights: a
+    production rig to pose through its controls (generating the rig takes several seconds)"""
+
+    bl_idname = "contact_edit.add_rigify_hand"
+    bl_label = "Rigify Hand"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        from . import rigify
+
+        if not rigify.available():
+            cls.poll_message_set("Rigify is not part of this Blender")
+            return False
+        return context.mode == "OBJECT"
+
+    def execute(self, context):
+        from . import rigify
+
+        hand, rig = rigify.rigify_hand(context.collection)
+        context.scene.contact_edit.hand = hand
+        _select_only(context, hand)
+        if context.area is not None and context.area.type == "VIEW_3D":
+            bpy.ops.view3d.view_selected()
+        self.report(
+            {"INFO"}, f"Added '{hand.name}' on the Rigify rig '{rig.name}'; pose it through its controls"
+        )
+        return {"FINISHED"}
+
+
 class VIEW3D_MT_contact_edit_add(bpy.types.Menu):
     bl_label = "Contact Edit"
 
@@ -214,6 +245,7 @@ class VIEW3D_MT_contact_edit_add(bpy.types.Menu):
         for kind in hands.KINDS:
             label = "Tentacle" if kind == "tentacle" else f"{kind.title()} Hand"
             layout.operator(CONTACT_EDIT_OT_add_hand.bl_idname, text=label).kind = kind
+        layout.operator(CONTACT_EDIT_OT_add_rigify_hand.bl_idname, text="Rigify Hand", icon="ARMATURE_DATA")
         layout.separator()
         for key, (label, _) in OBJECTS.items():
             layout.operator(CONTACT_EDIT_OT_add_object.bl_idname, text=label).shape = key
@@ -227,6 +259,7 @@ classes = (
     CONTACT_EDIT_OT_add_hand,
     CONTACT_EDIT_OT_add_object,
     CONTACT_EDIT_OT_add_example,
+    CONTACT_EDIT_OT_add_rigify_hand,
     VIEW3D_MT_contact_edit_add,
 )
 

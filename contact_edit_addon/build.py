@@ -58,7 +58,7 @@ PYTHONS = {
 #: Our libraries, bundled as one pure-Python wheel.
 LIBRARIES = ("geodesics", "solver", "tangible")
 #: Files of the add-on package that belong to the command line, not inside Blender.
-CONSOLE_ONLY = ("cli.py", "build.py")
+CONSOLE_ONLY = ("cli.py", "build.py", "rig_benchmark.py")
 
 
 class BuildError(RuntimeError):

@@ -6,6 +6,8 @@ Subcommands:
 * ``bench contacts`` — time the contact model (parameterize, edits, transfer, atlas).
 * ``bench solver`` — time contact IK (analytic against finite-difference gradients, NLopt's optimizers
   side by side) and the flex-to-contact grasp.
+* ``bench rigs`` — contact IK on a Rigify hand (through its controls, constraints and B-Bones) beside the
+  same contacts on the procedural human hand.
 * ``bench tangible`` — the puppet device's serial link under corruption, pose interpolation per frame,
   and the rig reduction's error against kit size (the paper's Fig. 7).
 * ``ablation`` — the contact IK ablation of Contact Edit's Fig. 11 as a table (each term of Eq. 2 removed).
@@ -19,7 +21,7 @@ Subcommands:
 * ``bench retarget`` — the whole retarget of a long, densely touching motion, stage by stage, and its
   speed-up from one to two worker processes.
 
-``demo`` and ``pose`` need Blender's Python module (``pip install "contact-edit[blender]"``).
+``demo``, ``pose`` and ``bench rigs`` need Blender's Python module (``pip install "contact-edit[blender]"``).
 """
 
 from __future__ import annotations
@@ -75,6 +77,10 @@ def _bench(args: argparse.Namespace) -> int:
             )
         )
         return 0
+    elif args.target == "rigs":
+        from . import rig_benchmark
+
+        rows = rig_benchmark.run(repeat=args.repeat, progress=_progress)
     elif args.target == "tangible":
         from tangible import benchmark as tangible_benchmark
 
@@ -291,7 +297,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench = commands.add_parser("bench", help="run a benchmark and print its table")
     bench.add_argument(
         "target",
-        choices=["geodesics", "contacts", "solver", "tangible", "retarget"],
+        choices=["geodesics", "contacts", "solver", "rigs", "tangible", "retarget"],
         help="what to benchmark",
     )
     bench.add_argument("--repeat", type=int, default=7, help="runs per timing (the median is shown)")

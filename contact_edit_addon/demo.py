@@ -124,7 +124,7 @@ def _landing(hand_obj, armature) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     world direction it leaves in."""
     contacts = store.load(hand_obj)
     posed = bridge.posed_hand(hand_obj, contacts.mesh.faces)
-    theta = bridge.current_pose(armature, posed.rig.names)
+    theta = posed.start
     mug = bpy.context.scene.contact_edit.target
     mug_mesh = bridge.trimesh(mug)
     tree = cKDTree(bridge.object_to_world(mug, mug_mesh.vertices))

@@ -101,7 +101,9 @@ class VIEW3D_PT_contact_edit_patches(SubPanel, bpy.types.Panel):
         row.operator("contact_edit.translate", text="Move", icon="VIEW_PAN")
         row.operator("contact_edit.rotate", text="Turn", icon="DRIVER_ROTATIONAL_DIFFERENCE")
         row.operator("contact_edit.bend", text="Bend", icon="MOD_SIMPLEDEFORM")
-        column.operator("contact_edit.clear", text="Remove", icon="X")
+        row = column.row(align=True)
+        row.operator("contact_edit.mirror_contacts", text="Mirror", icon="MOD_MIRROR")
+        row.operator("contact_edit.clear", text="Remove", icon="X")
 
 
 class VIEW3D_PT_contact_edit_brush(SubPanel, bpy.types.Panel):
@@ -138,6 +140,9 @@ class VIEW3D_PT_contact_edit_pose(SubPanel, bpy.types.Panel):
         row.operator(
             "contact_edit.flex_to_contact", text="Flex", icon="VIEW_PAN"
         ).keyframe = settings.keyframe
+        row.operator(
+            "contact_edit.mirror_pose", text="Mirror", icon="MOD_MIRROR"
+        ).keyframe = settings.keyframe
         row.prop(settings, "keyframe", text="Key", toggle=True, icon="KEY_HLT")
         if settings.last_solve:
             box = layout.box().column(align=True)
@@ -154,6 +159,34 @@ class VIEW3D_PT_contact_edit_pose(SubPanel, bpy.types.Panel):
             column.prop(settings, "weight_distance", text="Distance")
             column.prop(settings, "weight_normal", text="Normals")
             column.prop(settings, "weight_prior", text="Rest pose")
+
+
+class VIEW3D_PT_contact_edit_rig(SubPanel, bpy.types.Panel):
+    """The hand's rig: its wrist (the hand root), what moves it, and whether contact IK can pose it."""
+
+    bl_label = "Rig"
+    bl_parent_id = "VIEW3D_PT_contact_edit_pose"
+
+    def draw(self, context):
+        layout = self.layout
+        settings = context.scene.contact_edit
+        armature = next(
+            (m.object for m in getattr(settings.hand, "modifiers", ()) if m.type == "ARMATURE" and m.object),
+            None,
+        )
+        row = layout.row(align=True)
+        if armature is not None:
+            row.prop_search(settings, "hand_root", armature.data, "bones", text="", icon="BONE_DATA")
+        else:
+            row.prop(settings, "hand_root", text="", icon="BONE_DATA")
+        row.operator("contact_edit.check_rig", text="", icon="FILE_REFRESH")
+        report = posing.rig_report(context.scene)
+        if report is None:
+            return
+        box = layout.box().column(align=True)
+        lines = [line for text in report.lines for line in wrapped(context, text)]
+        for i, line in enumerate(lines):
+            box.label(text=line, icon=("CHECKMARK" if report.ok else "ERROR") if i == 0 else "BLANK1")
 
 
 class VIEW3D_PT_contact_edit_library(SubPanel, bpy.types.Panel):
@@ -176,5 +209,6 @@ classes = (
     VIEW3D_PT_contact_edit_patches,
     VIEW3D_PT_contact_edit_brush,
     VIEW3D_PT_contact_edit_pose,
+    VIEW3D_PT_contact_edit_rig,
     VIEW3D_PT_contact_edit_library,
 )

@@ -14,16 +14,17 @@ import bpy
 import numpy as np
 
 from geodesics import ContactError, SurfacePoints, TriMesh
-from solver import ContactIK, SolveResult, Weights, grasp
+from solver import ContactIK, SolverError, SolveResult, Weights, grasp
 from solver.hands import Hand
 
 from . import bridge, store
 
 #: Which DOFs a solve may change (the paper's staged solves: the root first, then everything).
 STAGES = (
-    ("ROOT", "Root only", "Move and turn the whole hand; no joint changes"),
-    ("ALL", "All bones", "Every joint of the hand's armature"),
-    ("SELECTED", "Selected bones", "Only the bones selected in Pose Mode"),
+    ("ROOT", "Root only", "Move and turn the whole hand by its root control; no finger changes"),
+    ("FINGERS", "Fingers only", "Every control under the hand root; the hand stays where it is"),
+    ("ALL", "All controls", "The hand's root control and every control under the hand root"),
+    ("SELECTED", "Selected controls", "Only the controls selected in Pose Mode"),
 )
 
 
@@ -89,18 +90,18 @@ def problem(scene: bpy.types.Scene, stage: str = "ALL") -> Problem:
     hand_set = store.load(hand, settings.deformed)
     object_set = store.load(target)
     hand_points, object_points, pairs = contact_pairs(hand_set, object_set)
-    posed = bridge.posed_hand(hand, hand_set.mesh.faces)
+    posed = bridge.posed_hand(hand, hand_set.mesh.faces, hand_points, settings.hand_root)
+    _reports[scene.name] = describe_plan(posed.plan)
     M = object_in_armature(target, posed)
     positions = object_points.positions(object_set.mesh) @ M[:3, :3].T + M[:3, 3]
     normals = object_set.mesh.face_normals[object_points.faces] @ np.linalg.inv(M[:3, :3])
     weights = Weights(d=settings.weight_distance, n=settings.weight_normal, p=settings.weight_prior)
     ik = ContactIK(posed.skin, hand_points, positions, normals, weights)
     armature = posed.armature_object()
-    theta0 = bridge.current_pose(armature, posed.rig.names)
     return Problem(
         posed=posed,
         ik=ik,
-        theta0=theta0,
+        theta0=posed.start,
         free=free_dofs(posed, armature, stage),
         pairs=tuple(pairs),
         world_scale=bridge.uniform_scale(armature),
@@ -112,6 +113,8 @@ def free_dofs(posed: bridge.PosedHand, armature: bpy.types.Object, stage: str) -
     rig = posed.rig
     if stage == "ROOT":
         return rig.dof_bone == 0
+    if stage == "FINGERS":
+        return rig.dof_bone != 0
     if stage == "ALL":
         return np.ones(rig.n_dofs, bool)
     if stage == "SELECTED":
@@ -119,8 +122,9 @@ def free_dofs(posed: bridge.PosedHand, armature: bpy.types.Object, stage: str) -
         selected = [b for b, name in enumerate(rig.names) if name in chosen]
         if not selected:
             raise bridge.BridgeError(
-                f"no bone of the hand's armature '{armature.name}' is selected; select the bones to solve "
-                "in Pose Mode, or solve all bones"
+                f"no control the solve poses is selected in '{armature.name}' (they are "
+                f"{', '.join(rig.names[:4])}{', …' if rig.n_bones > 4 else ''}); select some in Pose Mode, "
+                "or solve all controls"
             )
         return np.isin(rig.dof_bone, selected)
     raise ValueError(f"unknown stage {stage!r}; use one of {', '.join(s[0] for s in STAGES)}")
@@ -133,7 +137,29 @@ OUTCOMES = {
     "stopped": "stopped: no further progress",
     "cancelled": "cancelled",
     "kept": "stopped by you; kept the best pose",
+    "no free DOFs": "nothing to solve: every control it may move is locked",
+    "unchanged": "the pose did not change",
 }
+#: Outcomes that are warnings, not a result.
+WARNINGS = {"no free DOFs", "unchanged"}
+
+
+#: The skin Blender shows after a solve may differ from the solver's by this much of the hand's size
+#: (float32 rounding) before the solve says the rig did not follow.
+FOLLOW_TOLERANCE = 1e-4
+
+
+def rig_mismatch(scene: bpy.types.Scene, problem: Problem, theta) -> str | None:
+    """After writing a pose back: None when Blender's skin is the solver's, else how far it is off (an
+    IK arm that cannot reach, a rig changed since the solve started)."""
+    off = bridge.deviation(problem.posed, theta)
+    if off <= FOLLOW_TOLERANCE * problem.posed.skin.size:
+        return None
+    approximated = problem.posed.plan.approximated
+    why = f" ({', '.join(approximated[:2])} taken to follow the hand)" if approximated else ""
+    return (
+        f"the rig's skin ends up to {length_text(scene, off * problem.world_scale)} from the solved pose{why}"
+    )
 
 
 def length_text(scene: bpy.types.Scene, value: float) -> str:
@@ -156,6 +182,71 @@ def summary(scene: bpy.types.Scene, problem: Problem, result: SolveResult, outco
     )
 
 
+@dataclass(frozen=True)
+class RigReport:
+    """What the panel says about the hand's rig: whether it can be solved, and in a few short lines how
+    (the wrist, the control that moves it, the controls under it) or what blocks it."""
+
+    ok: bool
+    lines: tuple[str, ...]
+
+
+#: The last report per scene, computed when the hand or its root changes and with each solve.
+_reports: dict[str, RigReport] = {}
+
+
+def rig_report(scene: bpy.types.Scene) -> RigReport | None:
+    """The last :func:`check_rig` of the scene's hand, if any."""
+    return _reports.get(scene.name)
+
+
+def check_rig(scene: bpy.types.Scene) -> RigReport:
+    """Read the hand's rig and say whether contact IK can pose it, before anything is painted or solved."""
+    settings = scene.contact_edit
+    hand = settings.hand
+    if hand is None:
+        _reports.pop(scene.name, None)
+        return RigReport(False, ("Choose the hand",))
+    try:
+        contacts = store.load(hand)
+        points = [p.points for p in contacts.values()] if len(contacts) else []
+        rig = bridge.hand_rig(hand)
+        plan = bridge.hand_plan(
+            rig,
+            contacts.mesh.faces,
+            SurfacePoints.concatenate(points) if points else None,
+            settings.hand_root,
+        )
+        report = describe_plan(plan)
+    except (bridge.BridgeError, ContactError, SolverError) as err:
+        report = RigReport(False, (str(err),))
+    _reports[scene.name] = report
+    return report
+
+
+def describe_plan(plan) -> RigReport:
+    """The panel's lines for a :class:`solver.controls.Plan`."""
+    lines = [f"Wrist: {plan.hand_root}"]
+    if plan.root is None:
+        lines.append("Nothing moves the wrist; only the fingers are solved")
+    else:
+        root = plan.armature[plan.root]
+        turns = not all(root.lock_rotation)
+        moves = not all(root.lock_location) and not root.bone.use_connect
+        lines.append(f"{plan.root} {'moves and turns' if moves else 'turns' if turns else 'holds'} the hand")
+        if turns and not moves:
+            lines.append("(its location is locked; an IK hand control can move it)")
+    lines.append(f"{len(plan.controls)} controls under the wrist")
+    if plan.approximated:
+        shown = ", ".join(plan.approximated[:2]) + (", …" if len(plan.approximated) > 2 else "")
+        lines.append(f"Taken to follow the hand rigidly: {shown}")
+    for blocker in plan.blockers[:4]:
+        lines.append(f"Blocked: {blocker}")
+    if len(plan.blockers) > 4:
+        lines.append(f"… {len(plan.blockers) - 4} more")
+    return RigReport(plan.ok, tuple(lines))
+
+
 def flex(scene: bpy.types.Scene, direction: int = 1) -> tuple[bridge.PosedHand, np.ndarray, dict[str, bool]]:
     """Curl each chain of selected bones until it touches the object (flex-to-contact, 1988).
 
@@ -166,15 +257,15 @@ def flex(scene: bpy.types.Scene, direction: int = 1) -> tuple[bridge.PosedHand, 
     hand, target = _objects(scene)
     settings = scene.contact_edit
     hand_set = store.load(hand, settings.deformed)
-    posed = bridge.posed_hand(hand, hand_set.mesh.faces)
+    posed = bridge.posed_hand(hand, hand_set.mesh.faces, hand_root=settings.hand_root)
     armature = posed.armature_object()
     rig = posed.rig
     chosen = bridge.selected_bones(armature)
     selected = [b for b, name in enumerate(rig.names) if b > 0 and name in chosen]
     if not selected:
         raise bridge.BridgeError(
-            f"select the finger bones to curl in Pose Mode (bones of '{armature.name}' that deform "
-            f"'{hand.name}', not its root)"
+            f"select the finger controls to curl in Pose Mode (controls of '{armature.name}' under the "
+            f"hand root, such as {', '.join(rig.names[1:4]) or 'none'})"
         )
     chains = _chains(rig.parents, selected)
     object_mesh = bridge.trimesh(target)
@@ -185,8 +276,7 @@ def flex(scene: bpy.types.Scene, direction: int = 1) -> tuple[bridge.PosedHand, 
         skin.mesh, rig, skin.weights, kind=f"'{hand.name}'", length=skin.size,
         chains={rig.names[c[0]]: c for c in chains},
     )  # fmt: skip
-    theta0 = bridge.current_pose(armature, rig.names)
-    result = grasp(manipulator, inside, theta0, direction=direction)
+    result = grasp(manipulator, inside, posed.start, direction=direction)
     return posed, result.theta, result.touching
 
 

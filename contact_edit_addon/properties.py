@@ -35,11 +35,22 @@ def _is_mesh(_self, obj) -> bool:
     return obj.type == "MESH"
 
 
+def _check_rig(self, context) -> None:
+    """When the hand or its root changes, say at once whether its rig can be solved (the Pose panel)."""
+    from . import posing
+
+    posing.check_rig(context.scene)
+
+
 class CONTACT_EDIT_PG_scene(bpy.types.PropertyGroup):
     """Which objects are posed against each other, and how the pose is solved."""
 
     hand: bpy.props.PointerProperty(
-        name="Hand", type=bpy.types.Object, poll=_is_mesh, description="The skinned mesh that touches"
+        name="Hand",
+        type=bpy.types.Object,
+        poll=_is_mesh,
+        update=_check_rig,
+        description="The skinned mesh that touches",
     )
     target: bpy.props.PointerProperty(
         name="Object", type=bpy.types.Object, poll=_is_mesh, description="The mesh being touched"
@@ -72,6 +83,14 @@ class CONTACT_EDIT_PG_scene(bpy.types.PropertyGroup):
         name="Use deformed shape",
         description="Work on the hand's current deformed shape instead of its rest shape",
         default=False,
+    )
+    hand_root: bpy.props.StringProperty(
+        name="Hand root",
+        description=(
+            "The wrist bone where the solved hand starts: bones it does not lead to are left as they are. "
+            "Empty: the deform bone where the bones under the contacts meet"
+        ),
+        update=_check_rig,
     )
     weight_distance: bpy.props.FloatProperty(name="Distance (λd)", default=1.0, min=0.0)
     weight_normal: bpy.props.FloatProperty(name="Normals (λn)", default=1.0, min=0.0)

@@ -133,6 +133,11 @@ def test_the_sidebar_has_the_contact_tab(panel):
     assert "panel" in panel.shots and "add_menu" in panel.shots
 
 
+def test_choosing_the_hand_says_at_once_how_its_rig_is_solved(panel):
+    ok, *lines = panel.results["rig"]  # drawn in the Rig sub-panel (its draw raised nothing: see session)
+    assert ok and lines[0] == "Wrist: hand" and lines[1] == "forearm moves and turns the hand"
+
+
 def test_no_hotkey_of_ours_is_one_blender_already_uses_where_ours_would_run(panel):
     """Read from the running Blender's default keyconfig: a mode's keymap comes before the 3D View one,
     so a default hotkey there would silently win over ours."""

@@ -1,13 +1,18 @@
 """The one place where Blender data becomes the libraries' numpy types and back: meshes and surface
-points (:mod:`.mesh`), a hand's armature and vertex groups as a skinned rig, and poses (:mod:`.armature`),
+points (:mod:`.mesh`), a hand's armature (read whole by :mod:`.rigs`, its constraints by :mod:`.constraints`,
+its B-Bones by :mod:`.bbones`) and vertex groups as a skinned rig posed through its controls, and poses
+(:mod:`.armature`),
 an armature and the numbers a puppet device drives (:mod:`.device`).
 """
 
 from .armature import (
+    HandRig,
     PosedHand,
     apply_pose,
     armature_modifier,
-    current_pose,
+    deviation,
+    hand_plan,
+    hand_rig,
     posed_hand,
     rotation_path,
     selected_bones,
@@ -29,10 +34,13 @@ from .mesh import (
 
 __all__ = [
     "BridgeError",
+    "HandRig",
     "PosedHand",
     "apply_pose",
     "armature_modifier",
-    "current_pose",
+    "deviation",
+    "hand_plan",
+    "hand_rig",
     "mesh_arrays",
     "object_to_world",
     "points_from_hits",

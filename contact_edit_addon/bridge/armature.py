@@ -1,11 +1,12 @@
-"""A hand mesh and the armature that deforms it, as a :class:`solver.SkinnedMesh`, and poses back.
+"""A hand mesh and the armature that deforms it, as a :class:`solver.SkinnedMesh` posed through the
+armature's controls, and poses back.
 
-What the solver models is exactly what Blender's Armature modifier does for directly posed bones:
-linear blend skinning by vertex groups of deform bones (weights divided by their sum, vertices whose
-weights sum to at most 0.0001 left in place), bones posed by their own location, rotation and limits.
-Anything else that would make Blender's result differ from the solver's (B-Bones, Preserve Volume,
-envelopes, modifiers or shape keys before the armature, constraints other than a local Limit Rotation,
-drivers, bone scale) is reported by name rather than silently mis-posed.
+Whatever rig deforms the hand (a plain armature of deform bones, or a production rig such as Rigify whose
+deform bones follow mechanism bones and controls through constraints, with B-Bones), the solver poses
+what Blender's Armature modifier deforms, exactly: :mod:`solver.controls` models the part of the rig
+between the controls and the deform bones, and everything else is read from Blender's evaluated pose.
+The Armature modifier itself must be plain linear blend skinning by vertex groups (vertices whose deform
+weights sum to at most 0.0001 stay in place); anything else is refused by name.
 
 Everything the solver sees is in the armature object's space; the hand mesh and the object's contacts
 are carried there by the objects' world matrices.
@@ -13,26 +14,26 @@ are carried there by the objects' world matrices.
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 
 import bpy
 import numpy as np
-from mathutils import Euler, Quaternion
+from mathutils import Euler, Matrix, Quaternion
 from scipy import sparse
 
-from geodesics import TriMesh
-from solver import Rig, SkinnedMesh, SolverError
-from solver.rotations import EULER_ORDERS
+from geodesics import SurfacePoints, TriMesh
+from solver import SkinnedMesh, SolverError
+from solver.control_rig import ControlRig
+from solver.controls import Plan
 
 from .errors import BridgeError
 from .mesh import vertex_group_weights
+from .rigs import read_armature
 
 #: Blender's Armature modifier leaves a vertex in place when its deform weights sum to no more than this.
 MIN_TOTAL_WEIGHT = 1e-4
 #: Relative tolerance for an armature's scale to count as uniform.
 UNIFORM_SCALE_TOLERANCE = 1e-5
-_BONE_PATH = re.compile(r'^pose\.bones\["((?:[^"\\]|\\.)*)"\]')
 
 
 @dataclass(frozen=True)
@@ -44,23 +45,29 @@ class PosedHand:
     hand, armature : str
         Object names (names, not references, so that undo cannot leave them dangling).
     skin : SkinnedMesh
-        The hand's rest mesh in armature space, bound to the rig of the bones that move it.
+        The hand's rest mesh in armature space, bound to the :class:`~solver.controls.ControlRig` that
+        poses it through the armature's controls.
     hand_to_armature : (4, 4)
         Hand object space to armature space (Blender's ``premat`` of the Armature modifier).
-    rotation_modes : tuple of str
-        Each rig bone's Blender rotation mode (the rig's Euler order stands in for quaternion and
-        axis-angle bones, whose poses are converted on the way in and out).
     """
 
     hand: str
     armature: str
     skin: SkinnedMesh
     hand_to_armature: np.ndarray
-    rotation_modes: tuple[str, ...]
 
     @property
-    def rig(self) -> Rig:
+    def rig(self) -> ControlRig:
         return self.skin.rig
+
+    @property
+    def plan(self) -> Plan:
+        return self.skin.rig.plan
+
+    @property
+    def start(self) -> np.ndarray:
+        """(d,) the DOFs of the pose the armature had when this was read."""
+        return self.skin.rig.start
 
     def armature_object(self) -> bpy.types.Object:
         obj = bpy.data.objects.get(self.armature)
@@ -116,20 +123,23 @@ def armature_modifier(hand: bpy.types.Object) -> bpy.types.ArmatureModifier:
     return modifier
 
 
-def posed_hand(hand: bpy.types.Object, faces: np.ndarray) -> PosedHand:
-    """The hand's skinned rest mesh and rig, in armature space.
+@dataclass(frozen=True)
+class HandRig:
+    """What deforms a hand mesh: its armature read as the solver models it, the deform bones weighting the
+    mesh (the weight columns), and their normalized weights."""
 
-    Parameters
-    ----------
-    hand : a mesh object with an Armature modifier
-    faces : (m, 3) int
-        The triangles of the hand's contact set (its :class:`geodesics.TriMesh`), so that the set's
-        surface points (face, barycentric) name the same skin points on the skinned mesh.
+    armature: bpy.types.Object
+    model: object  # solver.controls.Armature
+    deform: tuple[str, ...]
+    weights: sparse.csr_matrix
+    hand_to_armature: np.ndarray
 
-    Raises
-    ------
-    BridgeError
-        For anything the solver cannot reproduce exactly, naming the bones, constraints or settings.
+
+def hand_rig(hand: bpy.types.Object) -> HandRig:
+    """Read the armature deforming ``hand`` and the hand's deform weights.
+
+    Raises BridgeError for an Armature modifier the solver does not reproduce, an armature scaled
+    unevenly, or a mesh no deform bone weights.
     """
     modifier = armature_modifier(hand)
     armature = modifier.object
@@ -142,35 +152,76 @@ def posed_hand(hand: bpy.types.Object, faces: np.ndarray) -> PosedHand:
             "it, or parent it with automatic weights",
             hand.name,
         )
-    weighted = [bones[i].name for i in np.unique(raw.indices)]
-    names = _rig_bones(armature, weighted)
-    column = {b.name: i for i, b in enumerate(bones)}
-    W = raw[:, [column[n] for n in names]].tocsr()
+    used = np.unique(raw.indices)
+    deform = tuple(bones[int(i)].name for i in used)
+    W = raw[:, used].tocsr()
     total = np.asarray(W.sum(axis=1)).ravel()
-    W = sparse.diags(np.where(total > MIN_TOTAL_WEIGHT, 1.0 / np.maximum(total, 1e-300), 0.0)) @ W
+    W = sparse.csr_matrix(
+        sparse.diags(np.where(total > MIN_TOTAL_WEIGHT, 1.0 / np.maximum(total, 1e-300), 0.0)) @ W
+    )
+    return HandRig(armature, read_armature(armature), deform, W, to_armature)
 
-    _check_supported(armature, names)
-    lower, upper, locked, modes = _limits(armature, names)
-    rig_bones = [bones[n] for n in names]
-    parents = [-1] + [names.index(b.parent.name) for b in rig_bones[1:]]
+
+def contact_bones(rig: HandRig, faces: np.ndarray, points: SurfacePoints | None) -> list[str]:
+    """The deform bones that weight the contact points most (every weighted bone when there are none)."""
+    if points is None or len(points) == 0:
+        return list(rig.deform)
+    corners = np.unique(faces[points.faces].ravel())
+    strongest = np.asarray(rig.weights[corners].argmax(axis=1)).ravel()
+    weighted = np.asarray(rig.weights[corners].sum(axis=1)).ravel() > 0
+    return [rig.deform[i] for i in np.unique(strongest[weighted])]
+
+
+def hand_plan(
+    rig: HandRig, faces: np.ndarray, points: SurfacePoints | None = None, hand_root: str = ""
+) -> Plan:
+    """What a solve of the hand would pose and what blocks it (:meth:`solver.controls.Armature.plan`).
+
+    ``hand_root`` names the wrist bone; empty finds it from the bones under the contact ``points``.
+    """
     try:
-        rig = Rig(
-            names,
-            parents,
-            np.array([np.array(b.matrix_local) for b in rig_bones]),
-            np.array([b.length for b in rig_bones]),
-            lower=lower,
-            upper=upper,
-            locked=locked,
-            rotation_modes=[m if m in EULER_ORDERS else "XYZ" for m in modes],
+        return rig.model.plan(
+            rig.deform,
+            contact_bones=contact_bones(rig, faces, points),
+            hand_root=hand_root or None,
         )
+    except SolverError as err:
+        raise BridgeError(f"'{rig.armature.name}': {err}") from err
+
+
+def posed_hand(
+    hand: bpy.types.Object, faces: np.ndarray, points: SurfacePoints | None = None, hand_root: str = ""
+) -> PosedHand:
+    """The hand's skinned rest mesh and the rig that poses it through the armature's controls.
+
+    Parameters
+    ----------
+    hand : a mesh object with an Armature modifier
+    faces : (m, 3) int
+        The triangles of the hand's contact set (its :class:`geodesics.TriMesh`), so that the set's
+        surface points (face, barycentric) name the same skin points on the skinned mesh.
+    points : SurfacePoints, optional
+        The contact points, to find the wrist from the bones under them.
+    hand_root : str
+        The wrist bone; empty finds it.
+
+    Raises
+    ------
+    BridgeError
+        For anything the solver cannot reproduce exactly, naming the bones, constraints or settings.
+    """
+    rig = hand_rig(hand)
+    plan = hand_plan(rig, faces, points, hand_root)
+    try:
+        control_rig = ControlRig(plan)
         vertices = np.empty(3 * len(hand.data.vertices))
         hand.data.vertices.foreach_get("co", vertices)
-        rest = vertices.reshape(-1, 3) @ to_armature[:3, :3].T + to_armature[:3, 3]
-        skin = SkinnedMesh(TriMesh(rest, faces), rig, W)
+        M = rig.hand_to_armature
+        rest = vertices.reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]
+        skin = SkinnedMesh(TriMesh(rest, faces), control_rig, rig.weights)
     except SolverError as err:
-        raise BridgeError(f"'{armature.name}' cannot be posed by contact IK: {err}", hand.name) from err
-    return PosedHand(hand.name, armature.name, skin, to_armature, tuple(modes))
+        raise BridgeError(str(err), hand.name) from err
+    return PosedHand(hand.name, rig.armature.name, skin, M)
 
 
 def _hand_to_armature(hand: bpy.types.Object, armature: bpy.types.Object) -> np.ndarray:
@@ -210,126 +261,6 @@ def _deform_weights(hand: bpy.types.Object, armature: bpy.types.Object) -> spars
     return W
 
 
-def _rig_bones(armature: bpy.types.Object, weighted: list[str]) -> list[str]:
-    """The weighted bones and their ancestors, parents first; they must share one root."""
-    bones = armature.data.bones
-    chains = {}
-    for name in weighted:
-        chain, bone = [], bones[name]
-        while bone is not None:
-            chain.append(bone.name)
-            bone = bone.parent
-        chains[name] = chain
-    roots = sorted({chain[-1] for chain in chains.values()})
-    if len(roots) > 1:
-        raise BridgeError(
-            f"the bones deforming the hand hang from {len(roots)} separate roots of '{armature.name}' "
-            f"({', '.join(roots)}); contact IK needs them under one root bone"
-        )
-    depth = {name: len(chain) - 1 - k for chain in chains.values() for k, name in enumerate(chain)}
-    order = {b.name: i for i, b in enumerate(bones)}
-    return sorted(depth, key=lambda n: (depth[n], order[n]))
-
-
-def _check_supported(armature: bpy.types.Object, names: list[str]) -> None:
-    """Raise if anything would make Blender pose the rig's bones differently from the solver."""
-    rig = set(names)
-    found = []
-    for name in names:
-        bone, pose_bone = armature.data.bones[name], armature.pose.bones[name]
-        if bone.bbone_segments > 1 and bone.use_deform:
-            found.append(f"{name}: B-Bone segments")
-        if bone.parent is not None and not bone.use_inherit_rotation:
-            found.append(f"{name}: does not inherit rotation")
-        if bone.parent is None and not bone.use_local_location:
-            found.append(f"{name}: location not in local space")
-        if any(abs(s - 1) > 1e-9 for s in pose_bone.scale):
-            found.append(f"{name}: scaled (clear with Alt+S)")
-        if bone.parent is not None and any(abs(x) > 1e-9 for x in pose_bone.location):
-            found.append(f"{name}: moved off its parent (clear with Alt+G)")
-        for constraint in pose_bone.constraints:
-            if _active(constraint) and _limit_rotation_problem(constraint, pose_bone) is not None:
-                found.append(f"{name}: {constraint.name} ({_limit_rotation_problem(constraint, pose_bone)})")
-    for pose_bone in armature.pose.bones:
-        for constraint in pose_bone.constraints:
-            if _active(constraint) and constraint.type in {"IK", "SPLINE_IK"}:
-                chain = _ik_chain(pose_bone, constraint)
-                if rig & chain and pose_bone.name not in rig:
-                    found.append(
-                        f"{', '.join(sorted(rig & chain))}: moved by {pose_bone.name}'s {constraint.name}"
-                    )
-    drivers = armature.animation_data.drivers if armature.animation_data else ()
-    for fcurve in drivers:
-        match = _BONE_PATH.match(fcurve.data_path)
-        if match and match.group(1) in rig and not fcurve.mute:
-            found.append(f"{match.group(1)}: driven ({fcurve.data_path.split('.')[-1]})")
-    if found:
-        shown = "; ".join(found[:6]) + (f"; … ({len(found)} in all)" if len(found) > 6 else "")
-        raise BridgeError(
-            f"contact IK cannot reproduce how Blender poses these bones of '{armature.name}': {shown}. "
-            "Mute or remove what is listed, or solve a rig without it"
-        )
-
-
-def _active(constraint) -> bool:
-    return constraint.enabled and constraint.influence > 0
-
-
-def _limit_rotation_problem(constraint, pose_bone) -> str | None:
-    """Why a constraint is not a Limit Rotation the solver turns into bounds, or None if it is."""
-    if constraint.type != "LIMIT_ROTATION":
-        return constraint.type.replace("_", " ").title()
-    if constraint.owner_space != "LOCAL":
-        return "Limit Rotation outside local space"
-    if constraint.influence != 1:
-        return "Limit Rotation with partial influence"
-    mode = pose_bone.rotation_mode if pose_bone.rotation_mode in EULER_ORDERS else "XYZ"
-    if constraint.euler_order not in {"AUTO", mode}:
-        return f"Limit Rotation in {constraint.euler_order} order on a {mode} bone"
-    return None
-
-
-def _ik_chain(pose_bone, constraint) -> set[str]:
-    chain, bone, length = set(), pose_bone, constraint.chain_count
-    while bone is not None and (length == 0 or len(chain) < length):
-        chain.add(bone.name)
-        bone = bone.parent
-    return chain
-
-
-def _limits(armature: bpy.types.Object, names: list[str]):
-    """DOF bounds, locks and rotation modes of the rig's bones, from locks, IK limits and Limit
-    Rotation constraints; unconstrained rotations get a full turn around their current value."""
-    nd = 6 + 3 * (len(names) - 1)
-    theta = current_pose(armature, names)
-    lower = np.concatenate([np.full(3, -np.inf), np.minimum(-np.pi, theta[3:])])
-    upper = np.concatenate([np.full(3, np.inf), np.maximum(np.pi, theta[3:])])
-    locked = np.zeros(nd, bool)
-    modes = []
-    for b, name in enumerate(names):
-        pose_bone = armature.pose.bones[name]
-        modes.append(pose_bone.rotation_mode)
-        rotation = 3 + 3 * b + np.arange(3)
-        if b == 0:
-            locked[:3] = pose_bone.lock_location
-        locked[rotation] = np.array(pose_bone.lock_rotation) | np.array(
-            [pose_bone.lock_ik_x, pose_bone.lock_ik_y, pose_bone.lock_ik_z]
-        )
-        for c, axis in enumerate("xyz"):
-            d = rotation[c]
-            if getattr(pose_bone, f"use_ik_limit_{axis}"):
-                lower[d], upper[d] = (
-                    getattr(pose_bone, f"ik_min_{axis}"),
-                    getattr(pose_bone, f"ik_max_{axis}"),
-                )
-            for constraint in pose_bone.constraints:
-                limited = constraint.type == "LIMIT_ROTATION" and getattr(constraint, f"use_limit_{axis}")
-                if limited and _active(constraint):
-                    lower[d] = max(lower[d], getattr(constraint, f"min_{axis}"))
-                    upper[d] = min(upper[d], getattr(constraint, f"max_{axis}"))
-    return lower, upper, locked, modes
-
-
 def selected_bones(armature: bpy.types.Object) -> set[str]:
     """Names of the bones selected in Pose Mode (``PoseBone.select`` since Blender 5.0, ``Bone.select``
     before)."""
@@ -367,37 +298,66 @@ def set_bone_rotation(pose_bone: bpy.types.PoseBone, rotation: Quaternion) -> No
         pose_bone.rotation_euler = rotation.to_euler(mode, pose_bone.rotation_euler)
 
 
-def current_pose(armature: bpy.types.Object, names) -> np.ndarray:
-    """The DOF vector (root location, then each bone's Euler angles) of the bones' current pose."""
-    theta = np.zeros(6 + 3 * (len(names) - 1))
-    for b, name in enumerate(names):
-        pose_bone = armature.pose.bones[name]
-        if b == 0:
-            theta[:3] = pose_bone.location
-        mode = pose_bone.rotation_mode
-        if mode in EULER_ORDERS:
-            theta[3 + 3 * b : 6 + 3 * b] = pose_bone.rotation_euler
-        else:
-            theta[3 + 3 * b : 6 + 3 * b] = to_quaternion(
-                mode, getattr(pose_bone, rotation_path(mode))
-            ).to_euler("XYZ")
-    return theta
-
-
 def apply_pose(posed: PosedHand, theta, frame: int | None = None) -> None:
-    """Pose the armature's bones by θ, keying location (root) and rotation at ``frame`` if given."""
+    """Pose the armature's controls by θ in their own rotation modes (the root control by the hand root's
+    rigid motion), keying them at ``frame`` if given. A control θ leaves where it was read gets back the
+    exact values it was read with, so that a cancelled solve restores them bit for bit."""
     armature = posed.armature_object()
-    theta = posed.rig.check_theta(theta)
-    for b, name in enumerate(posed.rig.names):
+    rig = posed.rig
+    theta = rig.check_theta(theta)
+    same = (theta == rig.start).reshape(-1, 3).all(axis=1)
+    keyed: list[tuple[bpy.types.PoseBone, str]] = []
+    root = rig.plan.root
+    if root is not None:
+        pose_bone = armature.pose.bones[root]
+        if same[0] and same[1]:
+            _restore(pose_bone, rig.armature[root], location=True)
+        else:
+            M = rig.root_transform(theta) @ rig.armature[root].matrix
+            local = armature.convert_space(
+                pose_bone=pose_bone, matrix=Matrix(M), from_space="POSE", to_space="LOCAL"
+            )
+            location, rotation, _ = local.decompose()
+            pose_bone.location = [
+                old if lock else new
+                for old, new, lock in zip(rig.armature[root].location, location, rig.locked[:3], strict=True)
+            ]
+            set_bone_rotation(pose_bone, rotation)
+        keyed += [(pose_bone, "location"), (pose_bone, rotation_path(pose_bone.rotation_mode))]
+    for b, name in enumerate(rig.names[1:], start=1):
         pose_bone = armature.pose.bones[name]
         angles = theta[3 + 3 * b : 6 + 3 * b]
-        if posed.rotation_modes[b] in EULER_ORDERS:
+        if same[b + 1]:
+            _restore(pose_bone, rig.armature[name])
+        elif pose_bone.rotation_mode == rig.orders[b]:
             pose_bone.rotation_euler = angles  # exactly the DOFs, no conversion
         else:
-            set_bone_rotation(pose_bone, Euler(angles, "XYZ").to_quaternion())
-        if b == 0:
-            pose_bone.location = theta[:3]
-        if frame is not None:
-            if b == 0:
-                pose_bone.keyframe_insert("location", frame=frame, group=name)
-            pose_bone.keyframe_insert(rotation_path(posed.rotation_modes[b]), frame=frame, group=name)
+            set_bone_rotation(pose_bone, Euler(angles, rig.orders[b]).to_quaternion())
+        keyed.append((pose_bone, rotation_path(pose_bone.rotation_mode)))
+    if frame is not None:
+        for pose_bone, path in keyed:
+            pose_bone.keyframe_insert(path, frame=frame, group=pose_bone.name)
+
+
+def _restore(pose_bone: bpy.types.PoseBone, read, location: bool = False) -> None:
+    """Give a pose bone back the channel values it was read with (a :class:`solver.controls.PoseBone`)."""
+    setattr(pose_bone, rotation_path(pose_bone.rotation_mode), read.rotation)
+    if location:
+        pose_bone.location = read.location
+
+
+def deviation(posed: PosedHand, theta) -> float:
+    """The largest distance (armature space) between the skin Blender now shows and the solver's pose θ:
+    near zero when the rig followed the solve exactly (the check after writing a pose back)."""
+    hand = bpy.data.objects.get(posed.hand)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    depsgraph.update()
+    mesh = hand.evaluated_get(depsgraph).to_mesh()
+    try:
+        shown = np.empty(3 * len(mesh.vertices))
+        mesh.vertices.foreach_get("co", shown)
+    finally:
+        hand.evaluated_get(depsgraph).to_mesh_clear()
+    M = posed.hand_to_armature
+    shown = shown.reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]
+    return float(np.abs(shown - posed.skin.posed_vertices(theta)).max())

@@ -52,8 +52,13 @@ class CONTACT_EDIT_OT_solve(HotkeyTool, bpy.types.Operator):
 
     def _finish(self, context, problem, result, outcome: str | None = None) -> None:
         problem.apply(result.theta, context.scene.frame_current if self.keyframe else None)
-        context.scene.contact_edit.last_solve = posing.summary(context.scene, problem, result, outcome)
-        self.report({"INFO"}, context.scene.contact_edit.last_solve)
+        message = posing.summary(context.scene, problem, result, outcome)
+        off = posing.rig_mismatch(context.scene, problem, result.theta)
+        if off:
+            message += f"; {off}"
+        context.scene.contact_edit.last_solve = message
+        warn = off or (outcome or result.status) in posing.WARNINGS
+        self.report({"WARNING"} if warn else {"INFO"}, message)
 
     # ------------------------------------------------------------------ interactive
 
@@ -173,6 +178,19 @@ class CONTACT_EDIT_OT_flex_to_contact(HotkeyTool, bpy.types.Operator):
         return {"FINISHED"}
 
 
+class CONTACT_EDIT_OT_check_rig(bpy.types.Operator):
+    """Read the hand's rig again and say whether contact IK can pose it (after changing the rig)"""
+
+    bl_idname = "contact_edit.check_rig"
+    bl_label = "Check Rig"
+
+    def execute(self, context):
+        report = posing.check_rig(context.scene)
+        self.report({"INFO"} if report.ok else {"WARNING"}, "; ".join(report.lines))
+        store.redraw()
+        return {"FINISHED"}
+
+
 class CONTACT_EDIT_OT_reset_weights(bpy.types.Operator):
     """Set the scene's solver weights to the defaults in the add-on's preferences"""
 
@@ -186,4 +204,9 @@ class CONTACT_EDIT_OT_reset_weights(bpy.types.Operator):
         return {"FINISHED"}
 
 
-classes = (CONTACT_EDIT_OT_solve, CONTACT_EDIT_OT_flex_to_contact, CONTACT_EDIT_OT_reset_weights)
+classes = (
+    CONTACT_EDIT_OT_solve,
+    CONTACT_EDIT_OT_flex_to_contact,
+    CONTACT_EDIT_OT_check_rig,
+    CONTACT_EDIT_OT_reset_weights,
+)

@@ -2,6 +2,7 @@
 frames a hand and a mug, the sidebar shows the tab; and Blender's own default keymap, for the clash test."""
 
 import bpy
+from common import addon as module
 from common import example, open_contact_tab
 from mathutils import Vector
 
@@ -40,6 +41,8 @@ def steps(s):
     ui = s.region(view, "UI")
     s.record("sidebar", {"width": ui.width, "height": ui.height, "x": ui.x, "y": ui.y})
     yield from s.shot("panel")
+    report = module("posing").rig_report(bpy.context.scene)  # what the Rig sub-panel shows
+    s.record("rig", None if report is None else [report.ok, *report.lines])
     default = bpy.context.window_manager.keyconfigs.default
     s.record(
         "default_keymap",
