@@ -77,7 +77,7 @@ from .bones import (
     shared as _shared,
 )
 from .errors import SolverError
-from .rotations import EULER_ORDERS, order_axes
+from .rotations import EULER_ORDERS, euler_to_matrix, order_axes
 
 #: Blender's defaults of the settings each modelled constraint type reads (RNA property names).
 DEFAULTS: dict[str, dict[str, Any]] = {
@@ -398,7 +398,13 @@ def _unit3(M):
 
 def matrix_to_euler(M, order: str):
     """(..., 3) ``mat4_to_eulO``: axes normalized, the solution with the smaller ``Σ|angle|``."""
-    e1, e2 = _eulo2(_unit3(M), order)
+    return normalized_matrix_to_euler(_unit3(M), order)
+
+
+def normalized_matrix_to_euler(M, order: str):
+    """(..., 3) ``mat3_normalized_to_eulO`` of (..., 3, 3) taken as they are (``quat_to_eulO`` of a quaternion
+    that is not of unit length gives what Blender gives): the solution with the smaller ``Σ|angle|``."""
+    e1, e2 = _eulo2(np.asarray(M)[..., :3, :3], order)
     d1 = np.abs(e1.real) @ _ONES3
     d2 = np.abs(e2.real) @ _ONES3
     return np.where((d1 > d2)[..., None], e2, e1)
@@ -436,23 +442,13 @@ def matrix_to_compatible_euler(M, old, order: str):
     return np.where((d1 > d2)[..., None], e2, e1)
 
 
-def euler_matrix(eul, order: str):
-    """(..., 3, 3) the rotation of Euler angles (..., 3) in ``order`` (``eulO_to_mat3``), built from
-    elementary rotations about the fixed axes: ``R_k R_j R_i``."""
-    eul = np.asarray(eul)
-    c, s = np.cos(eul), np.sin(eul)
-    i, j, k = order_axes(order)
-    R = [_axis_rotation(a, c[..., a], s[..., a]) for a in (i, j, k)]
-    return R[2] @ R[1] @ R[0]
-
-
 def _axis_rotation(axis: int, cos, sin):
     """(..., 3, 3) the rotation about a coordinate axis by the angle of ``(cos, sin)`` (...)."""
     return _AXIS_ONE[axis] + cos[..., None, None] * _AXIS_COS[axis] + sin[..., None, None] * _AXIS_SIN[axis]
 
 
 def _loc_euler_size(loc, eul, size, order):
-    return compose(loc, euler_matrix(eul, order), size)
+    return compose(loc, euler_to_matrix(eul, order), size)
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -848,7 +844,7 @@ def _rotate_euler(eul, order, axis: int, angle):
     unit = np.zeros((*np.shape(angle), 3))
     unit = unit.astype(np.result_type(unit, angle))
     unit[..., axis] = angle
-    total = euler_matrix(eul, order) @ euler_matrix(unit, order)
+    total = euler_to_matrix(eul, order) @ euler_to_matrix(unit, order)
     return matrix_to_euler(total, order)
 
 
@@ -880,7 +876,7 @@ def _copy_rotation(cs, cob, tars, ctx):
     if mix == "ADD":
         eul = eul + obeul
     eul = compatible_euler(eul, obeul)
-    newrot = euler_matrix(eul, order)
+    newrot = euler_to_matrix(eul, order)
     if mix == "BEFORE":
         newrot = newrot @ oldrot
     elif mix == "AFTER":

@@ -616,7 +616,7 @@ class _Program:
         """(k, controls, 4, 4) the finger controls' channel matrices at DOF rows X."""
         out = []
         for order, dofs, location, scale in self.control_groups:
-            R = constraints.euler_matrix(X[:, dofs], order)
+            R = euler_to_matrix(X[:, dofs], order)
             out.append(bones.channel_matrix(location, R, scale))
         if not out:
             return np.zeros((len(X), 0, 4, 4), dtype=X.dtype)

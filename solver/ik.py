@@ -141,8 +141,8 @@ class SolveResult:
     status : str
         ``"converged"``, ``"max evaluations"``, ``"cancelled"``, ``"stopped"`` (NLopt gave up, e.g.
         on round-off; the best pose is still returned), ``"no free DOFs"`` (nothing was allowed to move)
-        or ``"unchanged"`` (the optimizer ended where it started: a solve that moved nothing never
-        reports convergence).
+        or ``"unchanged"`` (the optimizer found nothing better than the start, to ``ftol_rel``: a solve
+        that moved nothing never reports convergence).
     """
 
     theta: np.ndarray
@@ -472,8 +472,8 @@ def minimize(
             status = "cancelled" if cancelled[0] else "stopped"
         except (nlopt.RoundoffLimited, RuntimeError):
             status = "stopped"
-    if status == "converged" and np.array_equal(best["theta"], theta):
-        status = "unchanged"
+    if status == "converged" and start_energy - best["energy"] <= ftol_rel * max(abs(start_energy), 1.0):
+        status = "unchanged"  # nothing better than where it started (to the stopping tolerance)
     return best["theta"], float(best["energy"]), dict(best["terms"]), count[0], status
 
 

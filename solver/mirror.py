@@ -33,6 +33,8 @@ from numpy.typing import ArrayLike
 
 from geodesics.mirror import flip_name
 
+from .bones import quaternion_to_matrix
+from .constraints import normalized_matrix_to_euler
 from .errors import SolverError
 
 __all__ = [
@@ -71,8 +73,6 @@ BBONE_FLIPPED = ("bbone_curveinx", "bbone_curveoutx", "bbone_rollin", "bbone_rol
 #: Vector (3,) B-Bone channels (copied unchanged by a flip).
 BBONE_VECTORS = ("bbone_scalein", "bbone_scaleout")
 
-#: ``EULER_HYPOT_EPSILON`` of ``math_rotation_c.cc``: below it the third Euler angle is taken as zero.
-_EULER_HYPOT_EPSILON = 0.0000375
 #: Blender's ``rotOrders``: the axes (i, j, k) and the parity of each Euler order.
 _ORDERS = {
     "XYZ": ((0, 1, 2), 0),
@@ -85,55 +85,13 @@ _ORDERS = {
 
 
 # ---------------------------------------------------------------------- Blender's rotation conversions
-# Ports of math_rotation_c.cc, vectorized over leading dimensions. Blender's float m[3][3] is indexed
-# m[column][row]; the arrays below are indexed the same way, M[..., column, row].
-
-
-def _quat_to_mat3(q: np.ndarray) -> np.ndarray:
-    """``quat_to_mat3`` (no normalization: a non-unit quaternion gives what Blender gives)."""
-    q0, q1, q2, q3 = np.moveaxis(np.sqrt(2.0) * q, -1, 0)
-    qda, qdb, qdc = q0 * q1, q0 * q2, q0 * q3
-    qaa, qab, qac = q1 * q1, q1 * q2, q1 * q3
-    qbb, qbc, qcc = q2 * q2, q2 * q3, q3 * q3
-    m = np.empty((*q.shape[:-1], 3, 3))
-    m[..., 0, 0] = 1.0 - qbb - qcc
-    m[..., 0, 1] = qdc + qab
-    m[..., 0, 2] = -qdb + qac
-    m[..., 1, 0] = -qdc + qab
-    m[..., 1, 1] = 1.0 - qaa - qcc
-    m[..., 1, 2] = qda + qbc
-    m[..., 2, 0] = qdb + qac
-    m[..., 2, 1] = -qda + qbc
-    m[..., 2, 2] = 1.0 - qaa - qbb
-    return m
-
-
-def _mat3_normalized_to_eulO(m: np.ndarray, order: str) -> np.ndarray:
-    """``mat3_normalized_to_eulO``: of the two Euler solutions, the one with the smaller sum of
-    absolute values (the first on a tie)."""
-    (i, j, k), parity = _ORDERS[order]
-    cy = np.hypot(m[..., i, i], m[..., i, j])
-    regular = cy > _EULER_HYPOT_EPSILON
-    e1 = np.empty((*m.shape[:-2], 3))
-    e2 = np.empty_like(e1)
-    e1[..., i] = np.where(
-        regular, np.arctan2(m[..., j, k], m[..., k, k]), np.arctan2(-m[..., k, j], m[..., j, j])
-    )
-    e1[..., j] = np.arctan2(-m[..., i, k], cy)
-    e1[..., k] = np.where(regular, np.arctan2(m[..., i, j], m[..., i, i]), 0.0)
-    e2[..., i] = np.where(regular, np.arctan2(-m[..., j, k], -m[..., k, k]), e1[..., i])
-    e2[..., j] = np.where(regular, np.arctan2(-m[..., i, k], -cy), e1[..., j])
-    e2[..., k] = np.where(regular, np.arctan2(-m[..., i, j], -m[..., i, i]), e1[..., k])
-    if parity:
-        e1, e2 = -e1, -e2
-    d1 = np.abs(e1).sum(-1)
-    d2 = np.abs(e2).sum(-1)
-    return np.where((d1 > d2)[..., None], e2, e1)
+# Ports of math_rotation_c.cc, vectorized over leading dimensions; the matrix ones are solver.bones' and
+# solver.constraints'.
 
 
 def quat_to_euler(q, order: str = "XYZ") -> np.ndarray:
     """(..., 3) Blender's ``quat_to_eulO``: Euler angles of quaternions (..., 4) (not normalized first)."""
-    return _mat3_normalized_to_eulO(_quat_to_mat3(np.asarray(q, dtype=np.float64)), order)
+    return normalized_matrix_to_euler(quaternion_to_matrix(np.asarray(q, dtype=np.float64)), order)
 
 
 def euler_to_quat(e, order: str = "XYZ") -> np.ndarray:

@@ -261,3 +261,15 @@ def test_bad_input_names_what_and_where(hand):
         ik.solve(free=[True, False])
     with pytest.raises(SolverError, match="marker"):
         ContactIK(hand, points, P, N, markers=Markers(points[:3], P[:2]))
+
+
+def test_a_solve_that_frees_or_moves_nothing_never_claims_convergence(hand):
+    points, P, N, truth = problem(hand)
+    ik = ContactIK(hand, points, P, N)
+    nothing = ik.solve(truth, free=np.zeros(hand.rig.n_dofs, bool))
+    assert nothing.status == "no free DOFs" and nothing.iterations == 0
+    assert np.array_equal(nothing.theta, hand.rig.clip(truth))
+    locked = hand.rig.locked.copy()
+    at_optimum = ContactIK(hand, points, P, N, Weights(p=0.0)).solve(truth)  # already where it should be
+    assert at_optimum.status == "unchanged" and np.abs(at_optimum.theta - hand.rig.clip(truth)).max() < 1e-6
+    assert np.array_equal(locked, hand.rig.locked)
