@@ -209,7 +209,7 @@ def check_rig(scene: bpy.types.Scene) -> RigReport:
         return RigReport(False, ("Choose the hand",))
     try:
         contacts = store.load(hand)
-        points = [p.points for p in contacts.values()] if len(contacts) else []
+        points = [contacts[name].points for name in contacts]
         rig = bridge.hand_rig(hand)
         plan = bridge.hand_plan(
             rig,

@@ -177,11 +177,11 @@ class ControlRig:
         return theta
 
     def _limits(self) -> None:
+        """Bounds: a turn either way, narrowed by an Euler control's limits, widened to hold the pose read
+        (a control outside its limits may stay there); locks from the controls'."""
         nd = self.n_dofs
         lower = np.where(self.is_rotation, -np.pi, -np.inf)
         upper = -lower
-        lower[3:] = np.minimum(lower[3:], self.start[3:])
-        upper[3:] = np.maximum(upper[3:], self.start[3:])
         locked = np.zeros(nd, bool)
         locked[:6] = self._root_locked
         for i, n in enumerate(self.names[1:], start=1):

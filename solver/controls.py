@@ -6,11 +6,12 @@ mechanism bones (``ORG-``, ``MCH-``) through constraints, which follow the contr
 move the body above the hand. This module solves a hand on such a rig:
 
 * **The hand, not the body.** The solved part starts at a *hand root* bone (by default the wrist: the
-  deform bone where the chains under the contacts meet). Every bone the hand root does not lead to is
-  input, read from Blender's evaluated pose whatever drives it (IK, drivers, constraints). The hand root
-  moves rigidly by six DOFs (``θ[:6]``: three location channels and a rotation vector) carried by the
-  *root control*, the control that moves the wrist (Rigify: ``hand_ik.L`` with the arm in IK,
-  ``hand_fk.L`` in FK); the root control's locked channels stay locked.
+  deform bone where the chains under the contacts meet). The *root control*, the control that moves the
+  wrist (Rigify: ``hand_ik.L`` with the arm in IK, ``hand_fk.L`` in FK), moves rigidly by six DOFs
+  (``θ[:6]``: its three location channels and a rotation vector; its locked channels stay locked).
+  Every bone neither it nor a finger control leads to is input, read from Blender's evaluated pose
+  whatever drives it (IK, drivers, constraints); bones between the root control and the hand root that
+  cannot be evaluated (an IK arm) are taken to follow the root control rigidly.
 * **Controls are the variables.** Every other DOF is a rotation of a *finger control*: the nearest
   control above each deform bone under the hand root (``θ[6 + 3(c - 1) + k]``: Euler angles in the
   control's order; quaternion and axis-angle controls use the Euler order farthest from gimbal lock at
@@ -193,11 +194,15 @@ class Armature:
         if missing:
             raise SolverError(f"bones of '{name}' name parents it does not have: {', '.join(missing)}")
         self.world = np.eye(4) if world is None else np.array(world, dtype=np.float64)
-        # Pose dependencies and their reverse (who reads whom).
+        # Pose dependencies and their reverse (who reads whom). A target read in its local space is read
+        # through its parent's pose too.
         self.inputs: dict[str, set[str]] = {}
         for b in pose_bones:
             known = {i for i in b.pose_inputs() if i in self.bones}
-            self.inputs[b.name] = known
+            for c in b.constraints[max(b.cut - 1, 0) :]:
+                if c.target_space in ("LOCAL", "LOCAL_OWNER_ORIENT"):
+                    known |= {self.bones[t.subtarget].parent for t in c.targets if t.subtarget in self.bones}
+            self.inputs[b.name] = known - {None}
         self.readers: dict[str, set[str]] = {n: set() for n in self.bones}
         for n, ins in self.inputs.items():
             for i in ins:

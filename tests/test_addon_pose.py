@@ -229,14 +229,16 @@ def test_solve_operator_recovers_a_pose_and_keys_it(tmp_path):
         vertices = np.concatenate([np.unique(kit.mesh.faces[kit.palmar_faces(kit.rig.bone_index(b))])
                                    for b in ("index_3", "thumb_3", "hand", "pinky_2")])
         gap = np.linalg.norm(world_vertices(hand)[vertices] - cast[vertices], axis=1)
-        result(dict(finished=list(finished), summary=scene.contact_edit.last_solve,
-                    mean_gap=float(gap.mean()), length=kit.length, keyed=keyed_frames(armature)))
+        report = posing.check_rig(scene)  # the wrist now comes from the bones under the patches
+        result(dict(finished=list(finished), summary=scene.contact_edit.last_solve, mean_gap=gap.mean(),
+                    rig=[report.ok, *report.lines], length=kit.length, keyed=keyed_frames(armature)))
         """,
         tmp_path,
         setup=SETUP + MOULD,
     )
     assert out["finished"] == ["FINISHED"]
     assert "contacts in 4 patch pairs" in out["summary"]
+    assert out["rig"][:2] == [True, "Wrist: hand"]
     assert out["mean_gap"] < 0.01 * out["length"]  # the paper's pose-recovery criterion, in Blender's mesh
     assert out["keyed"] == [12.0]
 

@@ -24,7 +24,7 @@ from scipy import sparse
 from geodesics import SurfacePoints, TriMesh
 from solver import SkinnedMesh, SolverError
 from solver.control_rig import ControlRig
-from solver.controls import Plan
+from solver.controls import Armature, Plan
 
 from .errors import BridgeError
 from .mesh import vertex_group_weights
@@ -129,7 +129,7 @@ class HandRig:
     mesh (the weight columns), and their normalized weights."""
 
     armature: bpy.types.Object
-    model: object  # solver.controls.Armature
+    model: Armature
     deform: tuple[str, ...]
     weights: sparse.csr_matrix
     hand_to_armature: np.ndarray
