@@ -10,7 +10,7 @@ from pathlib import Path
 import bpy
 
 from geodesics import ContactError, ContactSet
-from geodesics.contacts import write_atomically
+from geodesics.files import write_atomically
 
 from . import bridge
 

@@ -17,6 +17,9 @@ The contact model (Contact Edit §4, Algorithms 1-5) is built on them:
 * :mod:`geodesics.sampling` (even surface samples at a density) and :mod:`geodesics.brush` (the area
   brush that paints and erases them).
 
+:func:`load_mesh` and :func:`save_mesh` read and write OBJ, PLY, OFF, STL and glTF/GLB files, keeping the
+file's vertex and face numbering (:mod:`geodesics.meshio`).
+
 Tangent vectors are complex numbers in each point's tangent basis (see :mod:`geodesics.tangent`).
 """
 
@@ -28,6 +31,7 @@ from .errors import ContactError, GeodesicError, MeshError, MeshWarning
 from .exact import GeodesicField, GeodesicQuery, Path
 from .maps import closest_points, geodesic_path, log_map, transport
 from .mesh import TriMesh
+from .meshio import load_mesh, save_mesh
 from .patch import ContactPatch
 from .points import SurfacePoints
 from .tangent import change_basis, tangent_axes, tangent_from_3d, tangent_to_3d
@@ -55,8 +59,10 @@ __all__ = [
     "exp_map",
     "farthest_pair_axis",
     "geodesic_path",
+    "load_mesh",
     "log_map",
     "medial_axis",
+    "save_mesh",
     "tangent_axes",
     "tangent_from_3d",
     "tangent_to_3d",

@@ -14,17 +14,15 @@ file onto a different mesh when asked to. It is validated on load.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from types import MappingProxyType
 
 import numpy as np
 
 from .axis import Axis
 from .errors import ContactError, MeshError
+from .files import read_json, write_atomically
 from .maps import geodesic_path
 from .mesh import TriMesh
 from .patch import ContactPatch
@@ -301,11 +299,7 @@ class ContactSet:
         A file made for another mesh (different topology) is refused unless ``remap`` is true; then each
         patch is projected onto ``mesh`` by its saved positions and parameterized anew.
         """
-        path = Path(path)
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-            raise ContactError(f"{path}: cannot read a contact file: {err}") from None
+        data = read_json(path, "contact file", ContactError)
         return cls.from_dict(data, mesh, remap=remap, source=str(path))
 
     @classmethod
@@ -443,16 +437,3 @@ def _link(entry: dict, where: str) -> Link:
     leave = _complex_array([data.get("leave")], f"{where}: link.leave")[0]
     arrive = _complex_array([data.get("arrive")], f"{where}: link.arrive")[0]
     return Link(parent, float(length), complex(leave), complex(arrive))
-
-
-def write_atomically(path, text: str) -> None:
-    """Write a text file so that it is either complete or untouched, never half written."""
-    path = Path(path)
-    handle, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(handle, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(temp, path)
-    except BaseException:
-        Path(temp).unlink(missing_ok=True)
-        raise

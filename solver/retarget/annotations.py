@@ -34,13 +34,12 @@ from __future__ import annotations
 import json
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from geodesics import Axis, ContactAtlas, MeshError, SurfacePoints, TriMesh
-from geodesics.contacts import write_atomically
+from geodesics.files import read_json, write_atomically
 
 from ..errors import SolverError
 from ..hands import Hand
@@ -427,16 +426,7 @@ class HandPairAnnotation:
     @classmethod
     def load(cls, path, source_mesh: TriMesh | None = None, target_mesh: TriMesh | None = None):
         """Read and validate an annotation file; with meshes given, also check it was made for them."""
-        path = Path(path)
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise AnnotationError(f"no annotation file at {path}") from None
-        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
-            raise AnnotationError(f"{path} is not valid JSON: {e}") from None
-        except OSError as e:  # a directory, no permission, ...
-            raise AnnotationError(f"cannot read the annotation file {path}: {e}") from None
-        annotation = cls.from_dict(data)
+        annotation = cls.from_dict(read_json(path, "annotation file", AnnotationError))
         if source_mesh is not None:
             annotation.source.check(source_mesh, "source")
         if target_mesh is not None:

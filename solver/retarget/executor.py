@@ -25,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from geodesics.files import write_atomically
+
 from ..errors import SolverError
 
 #: A frame's result: named arrays and numbers (what an .npz holds).
@@ -56,7 +58,7 @@ class FrameStore:
                     "use a new output folder or delete this one"
                 )
         else:
-            write_bytes_atomically(stamp, identity.encode())
+            write_atomically(stamp, identity)
 
     def path(self, frame: int) -> Path:
         return self.folder / f"{int(frame):06d}.npz"
@@ -88,18 +90,6 @@ class FrameStore:
 
 def _digest(text: str) -> str:
     return hashlib.blake2b(text.encode(), digest_size=6).hexdigest()
-
-
-def write_bytes_atomically(path: Path, data: bytes) -> None:
-    """Write a file so that it is either complete or untouched, never half written."""
-    handle, temp = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=".tmp")
-    try:
-        with os.fdopen(handle, "wb") as f:
-            f.write(data)
-        os.replace(temp, path)
-    except BaseException:
-        Path(temp).unlink(missing_ok=True)
-        raise
 
 
 # Each worker process holds the run's shared data, set once by the pool's initializer.

@@ -20,6 +20,14 @@ built per posed mesh, all rays of a frame traversed together level by level (:cl
 paired points are returned as surface points (face, barycentric coordinates) of the opposite mesh's
 topology, so they pose with it. A source contact's normal is its posed face's normal ("element
 normals", §3.2).
+
+The caster is ours rather than trimesh's pure-Python ``trimesh.ray.ray_triangle.RayMeshIntersector``,
+which is the independent oracle of the tests (``tests/test_trimesh_oracle.py``: the same hits, faces and
+distances, and the same hit parities for rays through vertices and edges): trimesh casts half-lines only
+(an inverted ray needs the hits behind the contact too), finds candidate triangles with an r-tree query
+per ray in a Python loop (an order of magnitude slower on a frame's rays) and needs ``rtree``, which the
+Blender extension does not ship. Both work in float64 and report a crossing through an edge or a vertex
+once, which the parity rule needs.
 """
 
 from __future__ import annotations

@@ -36,11 +36,13 @@ from pathlib import Path
 
 import numpy as np
 
+from geodesics.files import write_atomically
+
 from ..errors import SolverError
 from ..skinning import SkinnedMesh
 from .annotations import HandPairAnnotation, TransferredContacts, transfer_motion
 from .baselines import Table, keypoint_tasks, keyvector_tasks, reseeded, solve_task
-from .executor import FrameStore, run_frames, write_bytes_atomically
+from .executor import FrameStore, run_frames
 from .frames import (
     HandSpec,
     RetargetWeights,
@@ -506,11 +508,11 @@ def save_result(result: Retarget, folder, annotation: HandPairAnnotation | None 
         curves[f"{method.lower()}_theta"] = theta
     buffer = io.BytesIO()
     np.savez(buffer, **curves)
-    write_bytes_atomically(paths["curves"], buffer.getvalue())
-    write_bytes_atomically(paths["summary"], json.dumps(result.summary(), indent=2).encode())
+    write_atomically(paths["curves"], buffer.getvalue())
+    write_atomically(paths["summary"], json.dumps(result.summary(), indent=2))
     if result.table is not None:
         paths["table1"] = folder / "table1.txt"
-        write_bytes_atomically(paths["table1"], (result.table.text() + "\n").encode())
+        write_atomically(paths["table1"], result.table.text() + "\n")
     if annotation is not None:
         paths["annotation"] = folder / "annotation.json"
         annotation.save(paths["annotation"])
