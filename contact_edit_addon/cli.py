@@ -15,6 +15,8 @@ Subcommands:
 * ``demo`` — the embedded default job: a procedural hand grasps a mug; saves, renders, summarizes.
 * ``pose`` — pose the hand of a saved scene from its contacts and save it to a new file.
 * ``synthesize`` — write a synthetic hand-object manipulation with ground truth (the motion format).
+* ``import-grab`` — read a GRAB motion exported by the retargeting paper's authors (``.npz`` and the hand
+  and object meshes), pair its object contacts with the hand, and save it in the motion format.
 * ``retarget`` — retarget a motion onto another hand: per-frame solves in parallel processes (or on a
   Dask cluster), refinement, spline fit, metrics and plots, with ``--baselines`` the §4.6 baselines and
   Table 1; an interrupted run resumes.
@@ -210,6 +212,50 @@ def _median(counts) -> float:
     return float(np.median(touching)) if touching.size else 0.0
 
 
+# solver.retarget.grab.GRAB_FPS and solver.retarget.pairing.DEFAULT_CUTOFF, spelled out so that building
+# the parser does not import the solver (a test checks they agree).
+_GRAB_FPS, _CUTOFF = 120.0, 0.01
+
+
+def _import_grab(args: argparse.Namespace) -> int:
+    from geodesics import MeshError
+    from geodesics.meshio import load_mesh
+    from solver import SolverError
+    from solver.retarget import grab, pair_motion
+    from solver.retarget.motion import MotionError
+
+    bars = _StageBars()
+    try:
+        hand_mesh = load_mesh(args.hand_mesh)
+        object_mesh = load_mesh(args.object_mesh)
+        motion = grab.load_grab(args.motion, hand_mesh, object_mesh, fps=args.fps, pair=False)
+        pairing = None
+        if not args.no_pair:
+            pairing = pair_motion(
+                motion,
+                "object",
+                cutoff=args.cutoff,
+                progress=lambda done, total: bars("pairing", done, total),
+            )
+            motion = pairing.apply(motion)
+        bars.close()
+        motion.save(args.output)
+    except (MeshError, MotionError, SolverError, OSError) as err:
+        bars.close()
+        print(f"contact-edit import-grab: {err}", file=sys.stderr)
+        return 1
+    counts = motion.object_contacts.count()
+    paired = ""
+    if pairing is not None:
+        paired = "; object contacts " + ", ".join(f"{n} {name}" for name, n in pairing.counts().items())
+    print(
+        f"contact-edit import-grab: {motion}; contacts per touching frame: median {int(_median(counts))}"
+        f"{paired}"
+    )
+    print(f"  saved {args.output}")
+    return 0
+
+
 def _weight(text: str) -> tuple[str, float]:
     """``NAME=VALUE`` of one Eq. 3 weight (``--weight``), checked by argparse."""
     from dataclasses import fields
@@ -264,7 +310,7 @@ def _retarget(args: argparse.Namespace) -> int:
         )  # fmt: skip
         bars.close()
         plot = not args.no_plot and importlib.util.find_spec("matplotlib") is not None
-        paths = pipeline.save_result(result, out, annotation, plot=plot)
+        paths = pipeline.save_result(result, out, annotation, plot=plot, rig=target.build().rig)
     except (SolverError, MotionError, OSError) as err:
         bars.close()
         print(f"contact-edit retarget: {err}", file=sys.stderr)
@@ -344,6 +390,27 @@ def build_parser() -> argparse.ArgumentParser:
         "--density", type=float, default=10.0, help="hand contact samples per cm² (default 10)"
     )
     synth.set_defaults(run=_synthesize)
+    imp = commands.add_parser(
+        "import-grab", help="import a GRAB motion exported by the retargeting paper's authors (.npz)"
+    )
+    imp.add_argument("motion", help="the authors' export (*_right_full_export_motion.npz)")
+    imp.add_argument("--hand-mesh", required=True, help="the exported hand mesh (*_full_export_handmesh.obj)")
+    imp.add_argument(
+        "--object-mesh", required=True, help="the exported object mesh (*_full_export_objectmesh.obj)"
+    )
+    imp.add_argument("--output", "-o", required=True, help="the motion file to write (.npz)")
+    imp.add_argument(
+        "--fps", type=float, default=_GRAB_FPS, help=f"frame rate (default {_GRAB_FPS:g}, GRAB's)"
+    )
+    imp.add_argument(
+        "--cutoff", type=float, default=_CUTOFF,
+        help=f"pairing distance ε in metres: farther hand hits are dropped (default {_CUTOFF:g})",
+    )  # fmt: skip
+    imp.add_argument(
+        "--no-pair", action="store_true",
+        help="keep the object contacts as they are; do not find hand contacts (default: pair them)",
+    )  # fmt: skip
+    imp.set_defaults(run=_import_grab)
     ret = commands.add_parser("retarget", help="retarget a motion onto another hand")
     ret.add_argument("motion", help="the source motion (.npz, see 'synthesize')")
     ret.add_argument("--target", required=True, help="the target hand: human, witch, alien, tentacle")

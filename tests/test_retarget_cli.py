@@ -7,7 +7,7 @@ import pytest
 
 from contact_edit_addon.cli import main
 from solver.hands import make_hand
-from solver.retarget import Motion
+from solver.retarget import KeyframeMotion, Motion
 from solver.retarget.metrics import IntersectionMeter
 
 
@@ -62,6 +62,13 @@ def test_retarget_writes_every_output(retargeted, motion_file):
     assert summary["frames"] == 44 and summary["spline_control_points"] == 8
     assert summary["median_contact_distance_mm"] == pytest.approx(np.nanmedian(contact) * 1e3)
     assert (out / "annotation.json").is_file()
+    # The authors' .kmexp holds the same motion: its joint values give back the final curves.
+    exported = KeyframeMotion.load(out / "motion.kmexp")
+    assert exported.framerate == 120 and exported.frames.tolist() == list(range(1, 45))
+    theta = exported.theta(alien.rig)
+    for f in (0, 20, 43):
+        np.testing.assert_allclose(alien.posed_vertices(theta[f]), result.hand_vertices[f], atol=1e-12)
+    np.testing.assert_allclose(exported.object_poses(), source.object_poses, atol=1e-12)
     assert (out / "metrics.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert len(list((out / "frames" / "full").glob("*.npz"))) == 44
 

@@ -5,7 +5,7 @@ refinement, B-spline fitting, metrics and the §4.6 baselines.
 ```python
 from solver.hands import make_hand
 from solver.retarget import Motion, HandSpec, default_annotation, retarget, synthetic
-motion = synthetic.generate("mug")                       # or Motion.load("capture.npz")
+motion = synthetic.generate("mug")                       # or Motion.load("capture.npz"), load_grab(...)
 annotation = default_annotation(make_hand("human"), make_hand("witch"))
 result = retarget(motion, HandSpec("witch"), annotation)  # frames in parallel processes
 result.theta, result.contact_distance, result.motion.save("witch.npz")
@@ -15,17 +15,31 @@ result.theta, result.contact_distance, result.motion.save("witch.npz")
 from . import synthetic
 from .annotations import AnnotationError, HandPairAnnotation, default_annotation, transfer_motion
 from .frames import FrameResult, FrameTask, HandSpec, RetargetWeights, estimate, solve_frame
+from .grab import GrabError, load_grab, save_grab
+from .interchange import (
+    ContactSequence,
+    InterchangeError,
+    KeyframeMotion,
+    load_markers,
+    pair_markers,
+    save_kmexp,
+    save_markers,
+)
 from .motion import Contacts, Motion, MotionError
 from .pairing import pair_motion
 from .pipeline import Retarget, RetargetOptions, retarget, save_result
 
 __all__ = [
     "AnnotationError",
+    "ContactSequence",
     "Contacts",
     "FrameResult",
     "FrameTask",
+    "GrabError",
     "HandPairAnnotation",
     "HandSpec",
+    "InterchangeError",
+    "KeyframeMotion",
     "Motion",
     "MotionError",
     "Retarget",
@@ -33,8 +47,14 @@ __all__ = [
     "RetargetWeights",
     "default_annotation",
     "estimate",
+    "load_grab",
+    "load_markers",
+    "pair_markers",
     "pair_motion",
     "retarget",
+    "save_grab",
+    "save_kmexp",
+    "save_markers",
     "save_result",
     "solve_frame",
     "synthetic",

@@ -620,27 +620,48 @@ def _quiet_mesh_warnings():
 
 
 def _read_members(path: Path) -> dict[str, np.ndarray]:
-    """Every member of an ``.npz`` archive, read without pickle; header sizes are checked against the
-    stored sizes before any data is allocated."""
-    known = set(_REQUIRED) | set(_OPTIONAL)
+    """Every member of a motion file; any member this version does not define is an error."""
+    return read_npz(path, "motion file", set(_REQUIRED) | set(_OPTIONAL), strict=True)
+
+
+def read_npz(
+    path: Path, what: str, names, strict: bool, error: type[MotionError] = MotionError
+) -> dict[str, np.ndarray]:
+    """The members ``names`` of an ``.npz`` archive, read without pickle; each header's promised size is
+    checked against the stored size before any data is allocated.
+
+    Parameters
+    ----------
+    path : Path
+    what : str
+        What the file should be, for messages (``"motion file"``).
+    names : collection of str
+        The members to read (absent ones are the caller's to report).
+    strict : bool
+        Whether any other member is an error (else it is skipped unread).
+    error : type
+        The :class:`MotionError` subclass to raise; its ``field`` names the member, or ``"file"``.
+    """
     try:
         archive = zipfile.ZipFile(path)
     except FileNotFoundError:
-        raise MotionError(f"{path}: no such file", "file") from None
+        raise error(f"{path}: no such file", "file") from None
     except IsADirectoryError:
-        raise MotionError(f"{path}: is a directory, not a motion file", "file") from None
+        raise error(f"{path}: is a directory, not a {what}", "file") from None
     except Exception as err:  # BadZipFile, OSError, struct and decoding errors of a mangled directory
-        raise MotionError(f"{path}: not a motion file (not a readable .npz archive: {err})", "file") from None
+        raise error(f"{path}: not a {what} (not a readable .npz archive: {err})", "file") from None
     arrays = {}
     with archive:
         for info in archive.infolist():
-            if not info.filename.endswith(".npy"):
-                raise MotionError(f"{path}: unexpected archive member {info.filename!r}", info.filename)
-            name = info.filename[:-4]
-            if name not in known:
-                raise MotionError(f"{path}: unexpected member {name!r}", name)
+            name = info.filename[:-4] if info.filename.endswith(".npy") else None
+            if name not in names:
+                if not strict:
+                    continue
+                if name is None:
+                    raise error(f"{path}: unexpected archive member {info.filename!r}", info.filename)
+                raise error(f"{path}: unexpected member {name!r}", name)
             if name in arrays:
-                raise MotionError(f"{path}: the member {name!r} is stored twice", name)
+                raise error(f"{path}: the member {name!r} is stored twice", name)
             try:
                 with archive.open(info) as f:
                     version = npy_format.read_magic(f)
@@ -661,8 +682,6 @@ def _read_members(path: Path) -> dict[str, np.ndarray]:
                         )
                 with archive.open(info) as f:
                     arrays[name] = npy_format.read_array(f, allow_pickle=False)
-            except MotionError:
-                raise
             except Exception as err:  # corrupt data: zlib, CRC, header syntax, short reads
-                raise MotionError(f"{path}: the member {name!r} is unreadable: {err}", name) from None
+                raise error(f"{path}: the member {name!r} is unreadable: {err}", name) from None
     return arrays

@@ -39,6 +39,7 @@ import numpy as np
 from geodesics.files import write_atomically
 
 from ..errors import SolverError
+from ..rig import Rig
 from ..skinning import SkinnedMesh
 from .annotations import HandPairAnnotation, TransferredContacts, transfer_motion
 from .baselines import Table, keypoint_tasks, keyvector_tasks, reseeded, solve_task
@@ -50,6 +51,7 @@ from .frames import (
     full_tasks,
     object_contact_geometry,
 )
+from .interchange import save_kmexp
 from .metrics import IntersectionMeter, Intersections, mean_distances
 from .motion import Motion
 from .refine import E_ACC, MAX_ITERATIONS, RefineLog, refine_trajectory
@@ -470,12 +472,20 @@ def _distances(motion, target, annotation, contacts, theta) -> tuple[np.ndarray,
     return contact, marker
 
 
-def save_result(result: Retarget, folder, annotation: HandPairAnnotation | None = None, plot: bool = True):
+def save_result(
+    result: Retarget,
+    folder,
+    annotation: HandPairAnnotation | None = None,
+    plot: bool = True,
+    rig: Rig | None = None,
+):
     """Write a retarget's outputs into ``folder`` (each file atomically) and return their paths.
 
-    ``motion.npz`` (the target hand's motion, :class:`.motion.Motion` format), ``curves.npz`` (the final,
-    estimated and refined DOF curves, the valid mask, the spline's knots and control points, the per-frame
-    distances and intersection volumes, each baseline's final curves as ``<name>_theta``),
+    ``motion.npz`` (the target hand's motion, :class:`.motion.Motion` format), ``motion.kmexp`` (the
+    same for the authors' tools, :mod:`.interchange`; when the target hand's ``rig`` is given and the
+    frame rate is a whole number, as that format stores it), ``curves.npz`` (the final, estimated and
+    refined DOF curves, the valid mask, the spline's knots and control points, the per-frame distances
+    and intersection volumes, each baseline's final curves as ``<name>_theta``),
     ``summary.json`` (:meth:`Retarget.summary`), ``table1.txt`` (the baseline comparison, when the
     baselines ran), ``annotation.json`` (the hand pair's annotation, when given) and ``metrics.png`` (the
     §4.2 plots).
@@ -490,6 +500,10 @@ def save_result(result: Retarget, folder, annotation: HandPairAnnotation | None 
         "summary": folder / "summary.json",
     }
     result.motion.save(paths["motion"])
+    if rig is not None and float(result.motion.fps).is_integer():
+        paths["kmexp"] = folder / "motion.kmexp"
+        m = result.motion
+        save_kmexp(paths["kmexp"], rig, result.theta, m.object_poses, m.fps, m.table, m.table_size)
     curves = {
         "theta": result.theta,
         "estimate": result.estimate,

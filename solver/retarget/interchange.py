@@ -1,0 +1,511 @@
+"""The retargeting paper's authors' own files: contacts, virtual markers and keyframe motion exports.
+
+Their tools (repository ``lakshmipathyarjun6/kinematic-motion-retargeting``, Maya plugins) exchange
+three JSON files; each is read and written here as their code does, with surface points as their
+``v``/``e``/``f`` strings (:mod:`geodesics.point_strings`, geometry-central's element numbering):
+
+* **Contacts** ``.json`` (``src/contactSequenceIO/contactSequenceIO.cpp``): ``{"meshName": str,
+  "data": [{"frame": int, "contacts": [str, …], "omissionIndices": [int, …]}, …]}``. One entry per
+  Maya frame that has contacts (frames without are left out, ``omissionIndices`` only when there are
+  some); the omitted rows are contacts the distance filter dropped
+  (``ContactTransferEditContext::commitParameterizedDistancesFilter``), kept in the file so a hand
+  file and its object file stay paired row for row. → :class:`ContactSequence`.
+* **Virtual markers** ``.virtualmarkers`` (``src/virtualMarkerIO/virtualMarkerIO.cpp``): ``{"meshName":
+  str, "data": [{"name": str, "MarkerPoints": [str, …]}, …]}``, one hand's markers. Two such files,
+  the source hand's and the target hand's, pair by name into our
+  :class:`~solver.retarget.annotations.MarkerAnnotation` (:func:`pair_markers`).
+* **Keyframe motion** ``.kmexp`` (``src/keyframeMotionSequenceIO/keyframeMotionSequenceIO.cpp``, with
+  ``USE_QUATS`` as its header defines it, and its ``README.md``): ``framerate``, ``jointNames``,
+  ``jointDofs``, ``table`` (scale, quaternion w x y z, translation), and per frame ``object``
+  (quaternion, translation) and ``hand`` (the root joint's quaternion and translation, then each
+  joint's values). Their exporter treats a joint free about all three axes as a ball joint (its
+  rotation as a quaternion, 4 values), writes one Euler angle (radians) per free axis of the others,
+  and leaves out joints with none. Lengths are centimetres (Maya's default unit). Our writer maps a
+  :class:`~solver.Rig` the same way: the root bone's armature-space rotation and head position, a bone
+  with three unlocked rotation DOFs as the quaternion of its local rotation (``matrix_basis``), the
+  others' unlocked Euler angles in x, y, z order. → :class:`KeyframeMotion`.
+
+Frames: Maya numbers them from the timeline's start (1 in their scenes); our frame ``f`` is their
+``first_frame + f``. Every reader validates what it loads and raises :class:`InterchangeError` naming
+the file, the frame and the entry; nothing is half loaded. Writers write atomically.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from geodesics import MeshError, SurfacePoints, TriMesh
+from geodesics.files import read_json, write_atomically
+from geodesics.point_strings import GeometryCentralIndex
+
+from ..errors import SolverError
+from ..rig import Rig
+from .annotations import MarkerAnnotation, keep_rows
+from .motion import Contacts, MotionError
+
+#: Metres to the centimetres of the authors' Maya scenes.
+CM = 100.0
+
+
+class InterchangeError(SolverError):
+    """A file in the authors' formats cannot be read or written as asked; the message names the file,
+    and where it applies the frame and entry."""
+
+
+# ------------------------------------------------------------------------------ JSON reading
+
+
+def _read_json(path, what: str) -> dict:
+    data = read_json(path, f"{what} file", InterchangeError)
+    if not isinstance(data, dict):
+        raise InterchangeError(f"{path}: a {what} file holds a JSON object, not {type(data).__name__}")
+    return data
+
+
+def _field(data: dict, key: str, kind: type, where: str):
+    """``data[key]``, checked to be of JSON type ``kind`` (a bool is not an int here)."""
+    if key not in data:
+        raise InterchangeError(f"{where}: '{key}' is missing")
+    value = data[key]
+    if not isinstance(value, kind) or (kind in (int, float) and isinstance(value, bool)):
+        names = {str: "a string", int: "an integer", list: "a list", float: "a number", dict: "an object"}
+        raise InterchangeError(f"{where}: '{key}' should be {names[kind]}, got {json.dumps(value)[:40]}")
+    return value
+
+
+def _check_mesh_name(found: str, expected: str | None, path) -> None:
+    if expected is not None and found != expected:
+        raise InterchangeError(f"{path} is for mesh {found!r}, not {expected!r}")
+
+
+def _points(index: GeometryCentralIndex, strings, where: str) -> SurfacePoints:
+    try:
+        return index.parse(strings, where)
+    except MeshError as e:
+        raise InterchangeError(str(e)) from None
+
+
+# ------------------------------------------------------------------------------ contacts
+
+
+@dataclass(frozen=True, eq=False)
+class ContactSequence:
+    """One mesh's contacts over a motion, as the authors' contact files hold them.
+
+    Attributes
+    ----------
+    mesh_name : str
+        The Maya shape the contacts are on (``"handShape"``, ``"objectShape"`` in their scenes).
+    contacts : Contacts
+        Every contact of every frame, omitted ones included, in the file's order.
+    omitted : (K,) bool
+        Rows the authors' distance filter dropped (``omissionIndices``).
+    first_frame : int
+        The file's frame number of our frame 0.
+    """
+
+    mesh_name: str
+    contacts: Contacts
+    omitted: np.ndarray
+    first_frame: int = 1
+
+    def __post_init__(self):
+        omitted = np.array(self.omitted, dtype=bool).reshape(-1)
+        if omitted.shape != (len(self.contacts),):
+            raise InterchangeError(
+                f"omitted needs one flag per contact ({len(self.contacts)}), got {omitted.shape}"
+            )
+        omitted.setflags(write=False)
+        object.__setattr__(self, "omitted", omitted)
+
+    def kept(self) -> Contacts:
+        """The contacts without the omitted rows, frames preserved."""
+        return keep_rows(self.contacts, ~self.omitted)
+
+    def save(self, path, mesh: TriMesh) -> None:
+        """Write the authors' contact file (``mesh`` is the one the contacts are on)."""
+        index = GeometryCentralIndex(mesh)
+        strings = index.format(SurfacePoints(self.contacts.faces, self.contacts.bary))
+        offsets = self.contacts.offsets
+        data = []
+        for f in np.flatnonzero(self.contacts.count()):
+            a, b = int(offsets[f]), int(offsets[f + 1])
+            entry = {"frame": int(f) + self.first_frame, "contacts": strings[a:b]}
+            dropped = np.flatnonzero(self.omitted[a:b])
+            if dropped.size:
+                entry["omissionIndices"] = dropped.tolist()
+            data.append(entry)
+        write_atomically(path, json.dumps({"meshName": self.mesh_name, "data": data}, indent=1))
+
+    @classmethod
+    def load(
+        cls,
+        path,
+        mesh: TriMesh,
+        n_frames: int | None = None,
+        first_frame: int = 1,
+        mesh_name: str | None = None,
+    ) -> ContactSequence:
+        """Read an authors' contact file onto ``mesh``.
+
+        Parameters
+        ----------
+        path : path-like
+        mesh : TriMesh
+            The mesh the file was made on, faces in the same order.
+        n_frames : int, optional
+            The motion's frame count (default: up to the last frame with contacts).
+        first_frame : int
+            The file's frame number of our frame 0 (1: Maya's default timeline).
+        mesh_name : str, optional
+            When given, the file must be for this mesh name.
+
+        Raises
+        ------
+        InterchangeError
+            Naming the file, frame and entry: not JSON, missing or mistyped fields, a frame before
+            ``first_frame`` or beyond ``n_frames`` or repeated, an unreadable point, an omission index
+            out of range.
+        """
+        data = _read_json(path, "contacts")
+        name = _field(data, "meshName", str, str(path))
+        _check_mesh_name(name, mesh_name, path)
+        entries = _field(data, "data", list, str(path))
+        index = GeometryCentralIndex(mesh)
+        frames, points, omitted = [], [], []
+        for i, entry in enumerate(entries):
+            where = f"{path}: data[{i}]"
+            if not isinstance(entry, dict):
+                raise InterchangeError(f"{where} should be an object with 'frame' and 'contacts'")
+            frame = _field(entry, "frame", int, where)
+            f = frame - first_frame
+            if f < 0 or (n_frames is not None and f >= n_frames):
+                last = "" if n_frames is None else f" to {first_frame + n_frames - 1}"
+                raise InterchangeError(
+                    f"{where}: frame {frame} is outside the motion's frames {first_frame}{last}"
+                )
+            where = f"{path}: frame {frame}"
+            p = _points(index, _field(entry, "contacts", list, where), f"{where}'s contacts")
+            flags = np.zeros(len(p), bool)
+            if "omissionIndices" in entry:
+                ids = _field(entry, "omissionIndices", list, where)
+                bad = [x for x in ids if type(x) is not int or not 0 <= x < len(p)]
+                if bad:
+                    raise InterchangeError(
+                        f"{where}: omissionIndices {bad[:5]} are not indices of its {len(p)} contacts"
+                    )
+                flags[ids] = True
+            frames.append(f)
+            points.append(p)
+            omitted.append(flags)
+        frames_arr = np.array(frames, np.int64)
+        repeated = np.flatnonzero(np.bincount(frames_arr, minlength=1) > 1) if frames else []
+        if len(repeated):
+            raise InterchangeError(f"{path}: frame {int(repeated[0]) + first_frame} appears more than once")
+        F = n_frames if n_frames is not None else (int(frames_arr.max()) + 1 if frames else 0)
+        per_frame = [SurfacePoints(np.empty(0, np.int64), np.empty((0, 3)))] * F
+        flags_per_frame = [np.zeros(0, bool)] * F
+        for f, p, flags in zip(frames, points, omitted, strict=True):
+            per_frame[f], flags_per_frame[f] = p, flags
+        try:
+            contacts = Contacts.from_frames(per_frame)
+        except MotionError as e:
+            raise InterchangeError(f"{path}: {e}") from None
+        flat = np.concatenate(flags_per_frame) if F else np.zeros(0, bool)
+        return cls(name, contacts, flat, first_frame)
+
+
+# ------------------------------------------------------------------------------ virtual markers
+
+
+def save_markers(path, mesh_name: str, mesh: TriMesh, markers: Mapping[str, SurfacePoints]) -> None:
+    """Write one hand's virtual markers (name → points on ``mesh``) as an authors' ``.virtualmarkers``."""
+    index = GeometryCentralIndex(mesh)
+    data = [{"name": str(name), "MarkerPoints": index.format(points)} for name, points in markers.items()]
+    write_atomically(path, json.dumps({"meshName": mesh_name, "data": data}, indent=1))
+
+
+def load_markers(path, mesh: TriMesh, mesh_name: str | None = None) -> dict[str, SurfacePoints]:
+    """Read one hand's virtual markers from an authors' ``.virtualmarkers`` file: name → points.
+
+    Raises
+    ------
+    InterchangeError
+        Naming the file and marker: not JSON, missing or mistyped fields, a repeated or empty marker
+        name, a marker without points, an unreadable point, a different ``mesh_name``.
+    """
+    data = _read_json(path, "virtual markers")
+    name = _field(data, "meshName", str, str(path))
+    _check_mesh_name(name, mesh_name, path)
+    index = GeometryCentralIndex(mesh)
+    markers: dict[str, SurfacePoints] = {}
+    for i, entry in enumerate(_field(data, "data", list, str(path))):
+        where = f"{path}: data[{i}]"
+        if not isinstance(entry, dict):
+            raise InterchangeError(f"{where} should be an object with 'name' and 'MarkerPoints'")
+        marker = _field(entry, "name", str, where)
+        if not marker or marker in markers:
+            raise InterchangeError(f"{where}: marker name {marker!r} is empty or repeated")
+        where = f"{path}: marker {marker!r}"
+        strings = _field(entry, "MarkerPoints", list, where)
+        if not strings:
+            raise InterchangeError(f"{where} has no points")
+        markers[marker] = _points(index, strings, f"{where}'s points")
+    return markers
+
+
+def pair_markers(
+    source: Mapping[str, SurfacePoints], target: Mapping[str, SurfacePoints]
+) -> tuple[MarkerAnnotation, ...]:
+    """Our markers from the source hand's and the target hand's marker sets, paired by name (in the
+    source's order). Names on one side only are an error naming them."""
+    only = sorted(set(source) ^ set(target))
+    if only:
+        raise InterchangeError(f"markers {', '.join(map(repr, only))} are on one hand only")
+    return tuple(MarkerAnnotation(name, source[name], target[name]) for name in source)
+
+
+# ------------------------------------------------------------------------------ keyframe motions
+
+
+def _quaternions(R: np.ndarray) -> np.ndarray:
+    """(k, 4) unit quaternions w x y z of rotations (k, 3, 3), w >= 0."""
+    q = Rotation.from_matrix(R).as_quat()[:, [3, 0, 1, 2]]
+    return np.where(q[:, :1] < 0, -q, q)
+
+
+def _matrices(q: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) rotations of quaternions w x y z (k, 4), normalized."""
+    return Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_matrix()
+
+
+def _rigid(q: np.ndarray, t_cm: np.ndarray) -> np.ndarray:
+    """(k, 4, 4) rigid transforms (metres) from quaternions and translations in centimetres."""
+    T = np.zeros((len(q), 4, 4))
+    T[:, :3, :3] = _matrices(q)
+    T[:, :3, 3] = t_cm / CM
+    T[:, 3, 3] = 1.0
+    return T
+
+
+def _pose_values(T: np.ndarray) -> np.ndarray:
+    """(k, 7) quaternion w x y z and translation (cm) of rigid transforms (k, 4, 4) in metres."""
+    return np.concatenate([_quaternions(T[:, :3, :3]), T[:, :3, 3] * CM], axis=1)
+
+
+def _joint_layout(rig: Rig) -> tuple[list[int], list[np.ndarray]]:
+    """The joints a rig exports (bone ids) and each one's free rotation components (0, 1, 2 = x, y, z)."""
+    locked = np.asarray(rig.locked, bool)
+    bones, components = [0], [np.arange(3)]
+    for b in range(1, rig.n_bones):
+        free = np.flatnonzero(~locked[rig.bone_dofs(b)])
+        if free.size:
+            bones.append(b)
+            components.append(free)
+    return bones, components
+
+
+def _joint_dofs(components: list[np.ndarray]) -> list[int]:
+    return [7] + [4 if c.size == 3 else int(c.size) for c in components[1:]]
+
+
+@dataclass(frozen=True, eq=False)
+class KeyframeMotion:
+    """An authors' ``.kmexp`` keyframe motion export, in its own units (centimetres, radians).
+
+    Attributes
+    ----------
+    framerate : int
+    joint_names : tuple of str
+    joint_dofs : tuple of int
+        Values per joint in ``hand``: 7 for the root, 4 for a ball joint, else one per free axis.
+    table : (10,) ndarray or None
+        Scale x y z, quaternion w x y z, translation (cm); None when the file has no table.
+    frames : (F,) int
+        Maya frame numbers.
+    object : (F, 7) ndarray
+        The object's quaternion w x y z and translation (cm).
+    hand : (F, sum(joint_dofs)) ndarray
+    """
+
+    framerate: int
+    joint_names: tuple[str, ...]
+    joint_dofs: tuple[int, ...]
+    table: np.ndarray | None
+    frames: np.ndarray
+    object: np.ndarray
+    hand: np.ndarray
+
+    @classmethod
+    def from_rig(
+        cls,
+        rig: Rig,
+        theta,
+        object_poses,
+        fps: float,
+        table=None,
+        table_size=None,
+        first_frame: int = 1,
+    ) -> KeyframeMotion:
+        """The export of a rig's motion θ (F, d) with the object's poses (F, 4, 4), as the authors'
+        exporter writes a Maya scene's (module docstring); ``table`` (4, 4) and ``table_size`` (3,) in
+        metres, the box table's pose and full extents."""
+        theta = _poses(rig, theta)
+        poses = np.asarray(object_poses, np.float64)
+        if poses.shape != (len(theta), 4, 4):
+            raise InterchangeError(f"object_poses must be ({len(theta)}, 4, 4), got {poses.shape}")
+        if float(fps) != round(float(fps)) or fps <= 0:
+            raise InterchangeError(f"the format stores a whole frame rate; got {fps}")
+        bones, components = _joint_layout(rig)
+        F = len(theta)
+        root = np.stack([rig.pose_matrices(t)[0] for t in theta])
+        columns = [_pose_values(root)]
+        for b, c in zip(bones[1:], components[1:], strict=True):
+            if c.size == 3:
+                columns.append(_quaternions(np.stack([rig.basis(t)[b, :3, :3] for t in theta])))
+            else:
+                columns.append(theta[:, rig.bone_dofs(b)[c]])
+        table_values = None
+        if table is not None:
+            T = np.asarray(table, np.float64).reshape(1, 4, 4)
+            size = np.asarray(table_size, np.float64).reshape(3)
+            table_values = np.concatenate([size * CM, _pose_values(T)[0]])
+        names = tuple(rig.names[b] for b in bones)
+        return cls(
+            round(float(fps)), names, tuple(_joint_dofs(components)), table_values,
+            np.arange(F) + first_frame, _pose_values(poses), np.concatenate(columns, axis=1),
+        )  # fmt: skip
+
+    def theta(self, rig: Rig, default=None) -> np.ndarray:
+        """(F, d) the rig's DOFs of every frame: the inverse of :meth:`from_rig`. Values the file does
+        not hold (locked axes) come from ``default`` (d,), the rig's rest pose if not given."""
+        bones, components = _joint_layout(rig)
+        names = tuple(rig.names[b] for b in bones)
+        if names != self.joint_names or tuple(_joint_dofs(components)) != self.joint_dofs:
+            raise InterchangeError(
+                f"the export's joints ({len(self.joint_names)}: {', '.join(self.joint_names[:4])}, …) are "
+                f"not those of the rig ({len(names)}: {', '.join(names[:4])}, …), or carry other DOFs"
+            )
+        start = np.concatenate([[0], np.cumsum(self.joint_dofs)])
+        default = rig.rest if default is None else rig.check_theta(default, "default")
+        F = len(self.frames)
+        basis = np.repeat(rig.basis(default)[None], F, axis=0)
+        root = _rigid(self.hand[:, 0:4], self.hand[:, 4:7])
+        basis[:, 0] = np.linalg.inv(rig.matrix_local[0]) @ root
+        partial = []
+        for j, (b, c) in enumerate(zip(bones[1:], components[1:], strict=True), start=1):
+            values = self.hand[:, start[j] : start[j + 1]]
+            if c.size == 3:
+                basis[:, b, :3, :3] = _matrices(values)
+            else:
+                partial.append((b, c, values))
+        theta = np.empty((F, rig.n_dofs))
+        previous = default
+        for f in range(F):  # each frame's Euler angles chosen nearest the last's: no 2π jumps
+            theta[f] = previous = rig.theta_from_basis(basis[f], previous)
+        for b, c, values in partial:
+            dofs = rig.bone_dofs(b)
+            theta[:, dofs] = default[dofs]
+            theta[:, dofs[c]] = values
+        return theta
+
+    def object_poses(self) -> np.ndarray:
+        """(F, 4, 4) the object's poses in metres."""
+        return _rigid(self.object[:, :4], self.object[:, 4:])
+
+    def save(self, path) -> None:
+        """Write the ``.kmexp`` file (JSON, as the authors' exporter lays it out)."""
+        out = {
+            "framerate": self.framerate,
+            "jointNames": list(self.joint_names),
+            "jointDofs": list(self.joint_dofs),
+        }
+        if self.table is not None:
+            out["table"] = self.table.tolist()
+        out["data"] = [
+            {"frame": int(f), "object": o, "hand": h}
+            for f, o, h in zip(self.frames.tolist(), self.object.tolist(), self.hand.tolist(), strict=True)
+        ]
+        write_atomically(path, json.dumps(out, indent=1))
+
+    @classmethod
+    def load(cls, path) -> KeyframeMotion:
+        """Read a ``.kmexp`` file, checking every field's type and length (errors name the frame)."""
+        data = _read_json(path, "kmexp")
+        where = str(path)
+        framerate = _field(data, "framerate", int, where)
+        names = _field(data, "jointNames", list, where)
+        dofs = _field(data, "jointDofs", list, where)
+        if not all(isinstance(n, str) for n in names) or len(set(names)) != len(names):
+            raise InterchangeError(f"{where}: jointNames must be distinct strings")
+        if (
+            len(dofs) != len(names)
+            or not all(type(d) is int and d > 0 for d in dofs)
+            or not dofs
+            or dofs[0] != 7
+        ):
+            raise InterchangeError(
+                f"{where}: jointDofs must give a positive count for each of the {len(names)} joints, "
+                "7 for the root"
+            )
+        table = None
+        if "table" in data:
+            table = _numbers(_field(data, "table", list, where), 10, f"{where}: table")
+        frames, obj, hand = [], [], []
+        for i, entry in enumerate(_field(data, "data", list, where)):
+            at = f"{where}: data[{i}]"
+            if not isinstance(entry, dict):
+                raise InterchangeError(f"{at} should be an object with 'frame', 'object' and 'hand'")
+            frames.append(_field(entry, "frame", int, at))
+            at = f"{where}: frame {frames[-1]}"
+            obj.append(_numbers(_field(entry, "object", list, at), 7, f"{at}: object"))
+            hand.append(_numbers(_field(entry, "hand", list, at), sum(dofs), f"{at}: hand"))
+        if not frames:
+            raise InterchangeError(f"{where} has no frames")
+        return cls(
+            framerate, tuple(names), tuple(dofs), table, np.array(frames, np.int64),
+            np.array(obj), np.array(hand),
+        )  # fmt: skip
+
+
+def _numbers(values: list, count: int, where: str) -> np.ndarray:
+    if len(values) != count or not all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) for v in values
+    ):
+        raise InterchangeError(f"{where} should be {count} numbers, got {len(values)} values")
+    a = np.array(values, np.float64)
+    if not np.all(np.isfinite(a)):
+        raise InterchangeError(f"{where} holds values that are not finite")
+    return a
+
+
+def _poses(rig: Rig, theta) -> np.ndarray:
+    T = np.asarray(theta, np.float64)
+    if T.ndim != 2 or T.shape[1] != rig.n_dofs or not np.all(np.isfinite(T)):
+        raise InterchangeError(f"theta must be finite with shape (F, {rig.n_dofs}), got {T.shape}")
+    return T
+
+
+def save_kmexp(
+    path, rig: Rig, theta, object_poses, fps: float, table=None, table_size=None
+) -> KeyframeMotion:
+    """Write a rig's motion as an authors' ``.kmexp`` (see :meth:`KeyframeMotion.from_rig`); returns it."""
+    export = KeyframeMotion.from_rig(rig, theta, object_poses, fps, table, table_size)
+    export.save(path)
+    return export
+
+
+__all__ = [
+    "ContactSequence",
+    "InterchangeError",
+    "KeyframeMotion",
+    "load_markers",
+    "pair_markers",
+    "save_kmexp",
+    "save_markers",
+]
