@@ -121,18 +121,21 @@ class VIEW3D_PT_contact_edit_device(SubPanel, bpy.types.Panel):
         state = session.state
         bound = {b.joint for b in settings.bindings}
         box = layout.box()
-        box.label(text="Attached joints (turn one to spot it)")
+        box.label(text="Attached joints (turn one, or blink it, to spot it)")
         box.operator_context = "EXEC_DEFAULT"  # bind at once, no dialog
         for joint in state.attached:
             if state.components[joint].kind != "joint":
                 continue
             row = box.row(align=True)
             row.label(text=joint_label(state, joint), icon="LINKED" if joint in bound else "UNLINKED")
+            row.operator("contact_edit.device_identify", text="", icon="LIGHT").joint = joint
             bind = row.operator("contact_edit.device_bind", text="Bind to Active Bone")
             bind.joint, bind.target = joint, "BONE"
         row = box.row(align=True)
         row.operator("contact_edit.device_calibrate", text="Calibrate to Rest").pose = "REST"
         row.operator("contact_edit.device_calibrate", text="To Starting Pose").pose = "START"
+        zero = box.operator("contact_edit.device_calibrate", text="Zero Joints on Device and Calibrate")
+        zero.pose, zero.zero_device = "REST", True
 
     @staticmethod
     def draw_recording(layout, settings) -> None:

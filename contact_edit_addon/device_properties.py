@@ -102,7 +102,7 @@ class CONTACT_EDIT_PG_device(bpy.types.PropertyGroup):
         min=0.0,
         max=50.0,
         default=0.0,
-        description="Share of the simulated device's frames damaged on the way",
+        description="Share of the simulated device's records damaged on the way to the computer",
     )
     rate: bpy.props.FloatProperty(
         name="Updates per second",

@@ -9,12 +9,15 @@ the status line says which; stopping gives back what the device touched.
 from __future__ import annotations
 
 import json
+import time
+from dataclasses import replace
 
 import bpy
 import numpy as np
 
 from tangible import (
     SPLITTERS,
+    Command,
     DeviceError,
     DeviceTree,
     Faults,
@@ -30,6 +33,7 @@ from tangible import (
     list_ports,
     match_device,
 )
+from tangible.protocol import MIN_ID, POLL_SIZE
 from tangible.topology import DeviceState
 
 from .bridge import BridgeError
@@ -43,11 +47,17 @@ from .bridge.device import (
 )
 from .device_properties import IDENTITY
 
-#: Longest wait, when connecting, for the device to show every bound joint (data comes at 50 Hz, piece
-#: kinds at 2 Hz).
+#: Longest wait, when connecting, for the device to show every bound joint (the firmware's records climb
+#: one piece per poll: a few hundred ms for 25 joints).
 CONNECT_TIMEOUT = 1.5
 #: The simulator's joints when nothing is bound or planned.
 SIMULATED_JOINTS = 3
+#: Longest wait for a joint to acknowledge a command (or to send readings after it), and how many times the
+#: zero command is sent before giving up.
+ACK_TIMEOUT, ZERO_ATTEMPTS = 0.5, 3
+#: Identify blinks a joint's green LED (the one the firmware leaves as set: its main loop drives red and
+#: blue itself) this many times, each half period on and half off.
+BLINKS, BLINK_PERIOD = 4, 0.5
 
 
 def device_armature(context) -> bpy.types.Object | None:
@@ -145,11 +155,15 @@ def plan_device(text: str) -> DeviceTree:
 
 
 def simulated_device(settings) -> DeviceTree:
-    """What the built-in simulator emulates: the planned device, else a chain of the bound joints (or of
-    a few joints when nothing is bound)."""
+    """What the built-in simulator emulates: the planned device (its pieces numbered from the firmware's
+    first id, as real pieces would be; connecting maps the plan onto them), else a chain of the bound
+    joints (or of a few joints when nothing is bound)."""
     if settings.plan:
-        return plan_device(settings.plan)
-    ids = list(dict.fromkeys(b.joint for b in settings.bindings)) or list(range(1, SIMULATED_JOINTS + 1))
+        plan = plan_device(settings.plan)
+        live = {p.id: MIN_ID + p.id for p in plan} | {0: 0}
+        return DeviceTree(replace(p, id=live[p.id], parent=live[p.parent]) for p in plan)
+    ids = list(dict.fromkeys(b.joint for b in settings.bindings))
+    ids = ids or [MIN_ID + i for i in range(1, SIMULATED_JOINTS + 1)]
     return DeviceTree(Piece(j, "joint", ids[i - 1] if i else 0) for i, j in enumerate(ids))
 
 
@@ -187,6 +201,7 @@ class Session:
         self._saved_numbers: dict[str, tuple[ScalarTarget, float]] = {}
         self._applied: tuple | None = None
         self._keyed_frame: int | None = None
+        self._blink: tuple[int, float, int] | None = None  # joint, start time, half period last sent
 
     @property
     def armature(self) -> str:
@@ -234,6 +249,7 @@ class Session:
         self._rebind(settings, armature)
         state = self.reader.state()
         self.state = state
+        self._blink_step()
         frame = scene.frame_current
         applied = (state.version, self._signature, frame)
         if self.puppet is not None and applied != self._applied:
@@ -270,14 +286,84 @@ class Session:
         self._keyed_frame = frame
         return len(self.written_bones) + len(self.targets)
 
-    def calibrate(self, settings, to_start: bool) -> int:
-        """Take the device's current shape as the bound bones' rest pose (or, ``to_start``, as the pose the
-        armature had before connecting): store each bone binding's reading and pose in the scene.
+    def identify(self, joint: int) -> None:
+        """Blink ``joint``'s green LED (:data:`BLINKS` times, driven by :meth:`tick`) so the puppeteer can
+        find it on the device.
 
         Raises
         ------
         DeviceError
-            Naming the bound joints that are not attached.
+            If the joint is not attached.
+        """
+        c = self.reader.state().components.get(joint)
+        if c is None or not c.attached:
+            raise DeviceError(f"joint {joint} is not attached, so it cannot blink")
+        if self._blink is not None and self._blink[0] != joint:
+            self.reader.send(Command.led(red=False, green=False, blue=False, target=self._blink[0]))
+        self._blink = (joint, time.monotonic(), -1)
+        self._blink_step()
+
+    def _blink_step(self) -> None:
+        """Send the LED command the blink calls for now, once per half period. A command can be lost (the
+        firmware ignores a poll that comes while it is busy), so the closing "off" goes twice, a half
+        period apart."""
+        if self._blink is None:
+            return
+        joint, start, sent = self._blink
+        phase = min(int((time.monotonic() - start) / (BLINK_PERIOD / 2)), 2 * BLINKS + 1)
+        if phase != sent:
+            on = phase < 2 * BLINKS and phase % 2 == 0
+            self.reader.send(Command.led(red=False, green=on, blue=False, target=joint))
+        self._blink = None if phase > 2 * BLINKS else (joint, start, phase)
+
+    def zero(self, joints: list[int]) -> DeviceState:
+        """Send the firmware's zero command (``'z'``: the joint stores its current readings as its zero, in
+        flash) to each of ``joints`` and wait until each has acknowledged it and sent readings taken
+        after; return that state.
+
+        One joint at a time, re-sent when no acknowledgement comes: a piece writing its flash ignores
+        polls, so a command that reaches it then is lost (``Src/main.c``, ``SET_FLASH``).
+
+        Raises
+        ------
+        DeviceError
+            Naming the joints that did not acknowledge after :data:`ZERO_ATTEMPTS` tries.
+        """
+        silent = []
+        for j in joints:
+            for _ in range(ZERO_ATTEMPTS):
+                acks = self.reader.state().components[j].acks
+                self.reader.send(Command.zero(target=j))
+                state = self.reader.wait_for(lambda s, j=j, n=acks: s.components[j].acks > n, ACK_TIMEOUT)
+                if state is not None:
+                    break
+            else:
+                silent.append(j)
+        if silent:
+            raise DeviceError(
+                f"joints {', '.join(map(str, silent))} did not confirm zeroing after {ZERO_ATTEMPTS} tries; "
+                "the calibration was not changed"
+            )
+        acked = {j: self.reader.state().components[j].data_time or -np.inf for j in joints}
+        fresh = self.reader.wait_for(
+            lambda s: all((s.components[j].data_time or -np.inf) > acked[j] for j in joints), ACK_TIMEOUT
+        )
+        if fresh is None:
+            raise DeviceError("the zeroed joints sent no readings after; the calibration was not changed")
+        return fresh
+
+    def calibrate(self, settings, to_start: bool, zero_device: bool = False) -> int:
+        """Take the device's current shape as the bound bones' rest pose (or, ``to_start``, as the pose the
+        armature had before connecting): store each bone binding's reading and pose in the scene.
+
+        With ``zero_device`` the joints first store this shape as their own zero (:meth:`zero`), so any
+        host reads them straight in it; the readings taken after still become the rest (the firmware
+        does not zero the distal twist of a two-controller joint, so they are not all exactly straight).
+
+        Raises
+        ------
+        DeviceError
+            Naming the bound joints that are not attached, or that did not confirm zeroing.
         """
         state = self.reader.state()
         bound = [b for b in settings.bindings if b.target == "BONE"]
@@ -295,6 +381,8 @@ class Session:
             )
         if not bound:
             raise DeviceError("no joint is bound to a bone, so there is nothing to calibrate")
+        if zero_device:
+            state = self.zero(sorted({b.joint for b in bound}))
         start = [self.rig.start.rotations[self.rig.bone(b.bone, f"joint {b.joint}")] for b in bound]
         for b, pose in zip(bound, start, strict=True):
             b.rest = tuple(state.components[b.joint].rotation)
@@ -333,7 +421,7 @@ class Session:
             text += f", {len(self.targets)} number{'s' * (len(self.targets) != 1)}"
         damaged = state.link.corrupt + state.link.oversize
         if damaged:
-            text += f"; {damaged} damaged frame{'s' * (damaged != 1)} skipped"
+            text += f"; {damaged} damaged record{'s' * (damaged != 1)} skipped"
         return "INFO", text
 
     def _driven_by(self, joints) -> list[str]:
@@ -452,11 +540,11 @@ def wait_for_device(
     state = reader.state()
     link = state.link
     if link.frames == 0:
-        if link.bytes == 0:
+        if link.bytes <= POLL_SIZE * link.echoes:  # at most our own polls, echoed by the adapter
             raise BridgeError(f"nothing arrives on {port}: is the device plugged in and powered?")
         raise BridgeError(
             f"{port} sends data, but no puppet device messages ({link.bytes} bytes, {link.corrupt} damaged "
-            f"frames in {CONNECT_TIMEOUT:g} s): is it the right port?"
+            f"spots in {CONNECT_TIMEOUT:g} s): is it the right port?"
         )
     if plan is not None:
         try:

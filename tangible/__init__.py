@@ -3,11 +3,13 @@ pose-space interpolation, and the binding of a live device to a rig.
 
 Device side:
 
-* :mod:`tangible.protocol` — the wire format (``PROTOCOL.md``): :func:`~tangible.protocol.encode`, the
-  streaming :class:`~tangible.protocol.Decoder`.
-* :class:`SerialReader` — a background reader over pyserial publishing immutable :class:`DeviceState`
-  snapshots; :class:`DeviceTopology` — the parent→children table behind it.
-* :class:`Simulator` — a device tree emitting frames to a pty or any pyserial port, with faults.
+* :mod:`tangible.protocol` — the published firmware's wire protocol (``PROTOCOL.md``): records and
+  downlink :class:`~tangible.protocol.Command` s, CRC-8, the streaming
+  :class:`~tangible.protocol.ReplyParser`.
+* :class:`SerialReader` — a background thread polling the device over pyserial and publishing immutable
+  :class:`DeviceState` snapshots; :class:`DeviceTopology` — the parent→children table behind it.
+* :class:`Simulator` — the firmware's state machines for a device tree, on a simulated clock, stepped by
+  hand or in real time behind a pty, with faults on the host link.
 * :mod:`tangible.joint` — the two-ring universal joint: sensed angles ↔ rotation.
 
 Rig side:
@@ -17,6 +19,8 @@ Rig side:
 * :func:`tangible.reachability.fit` — Eq. 1/7 by Gauss–Newton in the exponential map;
   :func:`reduce` — greedy joints and the splitter integer program; :mod:`tangible.assembly` — the
   instructions as text and SVG.
+* :mod:`tangible.rigreducer` — the authors' RigReducer files (libigl ``.tgf``/``.dmat``): :func:`read_rig`,
+  :func:`write_rig`, :func:`write_reduction`, :func:`read_reduction`.
 * :class:`PoseSpace` — PCA/Delaunay/barycentric-slerp interpolation; :class:`Puppet` — joints to bones,
   joints to scalars, calibration, evaluation per frame.
 
@@ -29,12 +33,14 @@ import logging
 
 from . import protocol
 from .device import SPLITTERS, DeviceTree, Piece, SplitterType
-from .errors import DeviceError, FrameError, ProtocolError, RigError, TangibleError
+from .errors import DeviceError, ProtocolError, RecordError, RigError, TangibleError
 from .joint import joint_angles, joint_rotation
 from .posespace import PoseSpace
+from .protocol import Command
 from .puppet import JointBinding, Puppet, PuppetPose, ScalarBinding, match_device
 from .reader import SerialReader, list_ports
 from .reduction import Kit, Reduction, reduce
+from .rigreducer import read_reduction, read_rig, write_reduction, write_rig
 from .simulator import Faults, KeyframeMotion, RandomMotion, Simulator
 from .skeleton import Skeleton, area_weights
 from .topology import ComponentState, DeviceState, DeviceTopology
@@ -45,13 +51,13 @@ logging.getLogger(__name__).addHandler(logging.NullHandler())
 
 __all__ = [
     "SPLITTERS",
+    "Command",
     "ComponentState",
     "DeviceError",
     "DeviceState",
     "DeviceTopology",
     "DeviceTree",
     "Faults",
-    "FrameError",
     "JointBinding",
     "KeyframeMotion",
     "Kit",
@@ -61,6 +67,7 @@ __all__ = [
     "Puppet",
     "PuppetPose",
     "RandomMotion",
+    "RecordError",
     "Reduction",
     "RigError",
     "ScalarBinding",
@@ -75,5 +82,9 @@ __all__ = [
     "list_ports",
     "match_device",
     "protocol",
+    "read_reduction",
+    "read_rig",
     "reduce",
+    "write_reduction",
+    "write_rig",
 ]

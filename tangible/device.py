@@ -2,7 +2,8 @@
 
 A :class:`DeviceTree` is what the :class:`~tangible.simulator.Simulator` emulates, what the rig
 reduction proposes (:attr:`tangible.reduction.Reduction.device`) and what the assembly instructions draw.
-Piece ids are protocol component ids (1 … 2³²−2); parent 0 is the host (the base the device is plugged
+Piece ids are component ids (1 … :data:`tangible.protocol.MAX_ID`; the simulator, like the firmware,
+needs :data:`~tangible.protocol.MIN_ID` or more); parent 0 is the host (the base the device is plugged
 into), which takes one piece (slot 0). A joint has one outlet (slot 0); a splitter has the slots of its
 :class:`SplitterType`.
 """
@@ -96,7 +97,7 @@ class Piece:
     Attributes
     ----------
     id : int
-        Component id (1 … 2³²−2).
+        Component id (1 … :data:`tangible.protocol.MAX_ID`).
     kind : str
         ``"joint"`` or ``"splitter"``.
     parent : int

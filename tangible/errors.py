@@ -1,6 +1,6 @@
 """The exceptions of the tangible package.
 
-Every error names what is wrong and where: the byte offset in a frame, the component id, the bone.
+Every error names what is wrong and where: the byte offset in a record, the component id, the bone.
 Bone indices are also kept as arrays (``RigError.bones``) so that a user interface can select them.
 """
 
@@ -14,25 +14,25 @@ class TangibleError(Exception):
 
 
 class ProtocolError(TangibleError, ValueError):
-    """The protocol API was misused: a message that cannot be encoded (an id out of range, a non-finite
-    angle, too many splitter slots) or a decoder fed something other than bytes.
+    """The protocol API was misused: a record or command that cannot be encoded (an id or angle out of
+    range, a wrong number of values) or a parser fed something other than bytes.
 
-    The streaming :class:`tangible.protocol.Decoder` never raises this for bad *bytes*: corrupt input is
-    counted, not raised.
+    The streaming :class:`tangible.protocol.ReplyParser` never raises this for bad *bytes*: corrupt input
+    is counted, not raised.
     """
 
 
-class FrameError(ProtocolError):
-    """One frame handed to :func:`tangible.protocol.decode_frame` is malformed.
+class RecordError(ProtocolError):
+    """Bytes handed to :func:`tangible.protocol.decode_record` or :meth:`tangible.protocol.Command.decode`
+    are not a valid record or command.
 
     Attributes
     ----------
     reason : str
-        A short machine-readable cause: ``"cobs"``, ``"length"``, ``"crc"``, ``"version"``, ``"type"``,
-        ``"field"``, ``"oversize"``.
+        A short machine-readable cause: ``"length"``, ``"kind"`` (an unknown record kind), ``"crc"``,
+        ``"field"`` (a value the firmware never sends).
     offset : int
-        Byte offset of the problem, in the decoded frame for ``"length"``/``"field"``/``"version"``/
-        ``"type"``/``"crc"`` (where the checksum starts) and in the encoded bytes for ``"cobs"``.
+        Byte offset of the problem in the record (17 for a record's CRC, 9 for a command's).
     """
 
     def __init__(self, message: str, *, reason: str, offset: int):

@@ -33,7 +33,7 @@ import numpy as np
 from . import rotations as rot
 from .device import DeviceTree
 from .errors import DeviceError, RigError
-from .joint import bend_angle
+from .joint import ANGLES, bend_angle
 from .posespace import PoseSpace
 from .skeleton import Skeleton
 from .topology import DeviceState
@@ -112,16 +112,14 @@ class ScalarBinding:
             raise RigError(f"scalar {self.name!r}: the source range needs two different finite angles")
 
     def value(self, angles) -> float:
-        """The property value for sensed angles (4,)."""
+        """The property value for sensed angles (4,), in record order (:data:`tangible.joint.ANGLES`)."""
         a = np.asarray(angles, dtype=np.float64)
-        x = {
-            "bend_a": a[0],
-            "bend_b": a[1],
-            "twist_proximal": a[2],
-            "twist_distal": a[3],
-            "twist": a[2] + a[3],
-            "bend": float(bend_angle(a)),
-        }[self.channel]
+        if self.channel == "twist":
+            x = a[ANGLES.index("twist_proximal")] + a[ANGLES.index("twist_distal")]
+        elif self.channel == "bend":
+            x = float(bend_angle(a))
+        else:
+            x = a[ANGLES.index(self.channel)]
         u = (x - self.source[0]) / (self.source[1] - self.source[0])
         lo, hi = self.target
         return float(np.clip(lo + u * (hi - lo), min(lo, hi), max(lo, hi)))

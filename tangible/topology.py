@@ -1,23 +1,25 @@
-"""The host's picture of the device: a parent→children table built from messages (Appendix A).
+"""The host's picture of the device: a parent→children table built from records (Appendix A, by the
+firmware's facts).
 
 :class:`DeviceTopology` is the mutable table; it is not thread-safe on its own (the
-:class:`~tangible.reader.SerialReader` guards it with a lock) and needs no thread, so a recorded byte
-stream can be replayed through it offline. :meth:`DeviceTopology.snapshot` returns an immutable
+:class:`~tangible.reader.SerialReader` guards it with a lock) and needs no thread or clock, so recorded
+replies can be replayed through it offline. :meth:`DeviceTopology.snapshot` returns an immutable
 :class:`DeviceState`.
 
-Rules (see ``PROTOCOL.md``, "Topology"):
+Rules (see ``PROTOCOL.md``, "The host's picture"):
 
-* A message from ``c`` with parent ``p`` and slot ``s`` places ``c`` in slot ``s`` of ``p`` (``p = 0``:
-  the host). A newer claim on an occupied slot, or one that would close a cycle, unlinks the stale entry,
-  which stays unplaced (detached) until it speaks again.
-* ``c`` is *heard* when it sends a message or when a message it relayed arrives (its id in the parent
-  field proves it was powered and linked).
-* ``c`` is **attached** when it was heard within ``timeout`` seconds (2 s by default) and its parent is
-  the host or attached. So a component silent for longer than ``timeout`` is detached with its whole
-  subtree, and re-attached as soon as it (or a child through it) speaks.
-* Per-creator sequence numbers count lost frames: a forward step ``g`` (mod 65536) with ``1 ≤ g < 256``
-  while the component was heard within ``timeout`` adds ``g − 1`` to ``dropped``; any other step counts
-  as a restart (power cycle). The first message after a silence longer than ``timeout`` counts neither.
+* The firmware's first relayer writes its id into a record (and a splitter its port), so a record from
+  ``c`` with relayer ``r`` and port ``s`` places ``c`` in slot ``s`` of ``r``; relayer 0 means ``c`` is the
+  piece the host polls (slot 0 of the host). A newer claim on an occupied slot, or one that would close a
+  cycle, unlinks the stale entry, which stays unplaced (detached) until it speaks again. A record that
+  names its creator as its relayer (a joint's two halves in data mode 2) places nothing.
+* ``c`` is *heard* when a record it created arrives or one it relayed (its id as relayer proves it was
+  powered and linked).
+* ``c`` is **attached** when it was heard within ``timeout`` seconds (2 s by default) and its parent is the
+  host or attached: a piece silent for longer is detached with its whole subtree, and re-attached as soon
+  as it (or a child through it) speaks.
+* The firmware numbers nothing, so lost records cannot be told per piece: the link's counters
+  (:class:`LinkStats`) say how many records were corrupt and how many replies were short or missing.
 """
 
 from __future__ import annotations
@@ -30,14 +32,20 @@ import numpy as np
 
 from .errors import DeviceError
 from .joint import joint_rotation
-from .protocol import KIND_SPLITTER, ChildMessage, DataMessage, Message, TypeMessage
+from .protocol import (
+    NODE_JOINT_TUT_T,
+    AckRecord,
+    DataRecord,
+    InitRecord,
+    Record,
+    SplitterRecord,
+    splitter_rotation,
+)
 
 __all__ = ["DETACH_TIMEOUT", "ComponentState", "DeviceState", "DeviceTopology", "LinkStats"]
 
 #: Seconds of silence after which a component and its subtree count as detached (Appendix A).
 DETACH_TIMEOUT = 2.0
-#: A forward sequence step at least this large (or a step back) is a restart, not lost frames.
-SEQ_RESTART_GAP = 256
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -49,56 +57,78 @@ def _readonly(a: np.ndarray) -> np.ndarray:
 class LinkStats:
     """Counters of the serial link (cumulative since the reader started).
 
-    ``bytes``/``frames``/``corrupt``/``oversize``/``unsupported`` are the decoder's
-    (:class:`tangible.protocol.DecoderStats`); ``reconnects`` counts successful re-openings of the port
-    after it failed; ``error`` is the last port error in words ("" when none).
+    ``bytes`` read; ``frames`` valid records (empty ones not counted) and ``empty`` empty ones;
+    ``corrupt`` damaged spots (a record failing its checks, or bytes a dropped, inserted or cut-off byte
+    made unreadable) and ``skipped`` bytes not in any valid record; replies ``short`` of 216 bytes,
+    ``oversize`` (longer) and ``missing`` (no reply to a poll); ``polls`` written, ``echoes`` of them
+    heard back and skipped, ``commands`` sent; ``reconnects`` successful re-openings of the port after it
+    failed; ``error`` the last port error in words ("" when none). See
+    :class:`tangible.protocol.ParserStats`.
     """
 
     bytes: int = 0
     frames: int = 0
+    empty: int = 0
     corrupt: int = 0
+    skipped: int = 0
+    short: int = 0
     oversize: int = 0
-    unsupported: int = 0
+    missing: int = 0
+    polls: int = 0
+    echoes: int = 0
+    commands: int = 0
     reconnects: int = 0
     error: str = ""
 
 
 @dataclass(frozen=True)
 class ComponentState:
-    """One component as last heard.
+    """One component (a piece: a joint's two controllers share one id) as last heard.
 
     Attributes
     ----------
     id : int
     kind : str or None
-        ``"joint"``, ``"splitter"``, or None until a type or data message tells.
+        ``"joint"``, ``"splitter"``, ``"twist"`` (a joint's distal 0x84 controller heard on its own: the two
+        halves do not share an id), ``"other"``, or None until an init or data record tells.
+    node_type : int or None
+        The firmware's node type from the last init record.
     colour : (int, int, int) or None
     parent : int or None
         0 for the host, None while unplaced (after a stale link was broken).
     slot : int
-        Slot of the parent it is plugged into.
+        Slot (splitter port) of the parent it is plugged into.
     attached : bool
         Heard within the timeout, with every ancestor attached.
     last_seen, last_heard : float
-        Clock time of its last own message / of its last own or relayed message (-inf if never).
+        Clock time of its last own record / of its last own or relayed record (-inf if never).
     attached_since : float
         When it last went from silent to heard.
     angles : (4,) ndarray or None
-        A joint's last sensed angles ``(bend_a, bend_b, twist_proximal, twist_distal)``, radians.
+        A joint's last sensed angles, radians in record order (proximal twist, bend α, bend β, distal
+        twist).
+    raw : (4,) tuple of int or None
+        The same as the u16 of the record.
     rotation : (4,) ndarray or None
-        The same as a quaternion (:func:`tangible.joint.joint_rotation`).
+        The joint's rotation (:func:`tangible.joint.joint_rotation` of ``angles``).
     data_time : float or None
         When ``angles`` arrived.
-    data_seq : int or None
-        Sequence number of the data message ``angles`` came in.
+    slot_angles : Mapping[int, (3,) tuple] or None
+        A splitter's outlets: slot → the three angles of its splitter records (radians).
     slot_rotations : (k, 4) ndarray or None
-        A splitter's slot rotations (inlet frame to each outlet frame).
-    frames, dropped, restarts, attachments : int
-        Messages received, messages lost (sequence gaps), restarts seen, times it (re-)attached.
+        The same as rotations of the outlets in the splitter's inlet frame, by slot
+        (:func:`tangible.protocol.splitter_rotation`).
+    frames : int
+        Records it created that arrived.
+    acks : int
+        Commands it acknowledged; ``last_ack`` the last acknowledgement.
+    attachments : int
+        Times it (re-)attached.
     """
 
     id: int
     kind: str | None
+    node_type: int | None
     colour: tuple[int, int, int] | None
     parent: int | None
     slot: int
@@ -107,13 +137,14 @@ class ComponentState:
     last_heard: float
     attached_since: float
     angles: np.ndarray | None
+    raw: tuple[int, int, int, int] | None
     rotation: np.ndarray | None
     data_time: float | None
-    data_seq: int | None
+    slot_angles: Mapping[int, tuple[float, float, float]] | None
     slot_rotations: np.ndarray | None
     frames: int
-    dropped: int
-    restarts: int
+    acks: int
+    last_ack: AckRecord | None
     attachments: int
 
 
@@ -133,7 +164,7 @@ class DeviceState:
         Parent → attached children ordered by slot; key 0 is the host.
     link : LinkStats
     version : int
-        Number of messages applied so far; equal versions mean equal device data.
+        Number of records applied so far; equal versions mean equal device data.
     """
 
     time: float
@@ -158,7 +189,7 @@ class DeviceState:
         return tuple(out)
 
     def joint_angles(self, ids: Sequence[int]) -> np.ndarray:
-        """(k, 4) last sensed angles of joints ``ids``.
+        """(k, 4) last sensed angles of joints ``ids`` (record order).
 
         Raises
         ------
@@ -175,51 +206,62 @@ class DeviceState:
         c = self.components.get(i)
         if c is None:
             raise DeviceError(f"component {i} was never heard")
-        if c.angles is None:
+        if c.angles is None or c.rotation is None:
             raise DeviceError(f"component {i} has sent no joint data")
         return c
 
 
+def _kind(node_type: int) -> str:
+    if node_type == NODE_JOINT_TUT_T:
+        return "twist"
+    if node_type & 0x0F == 0x04:
+        return "joint"
+    if node_type & 0x0F == 0x08:
+        return "splitter"
+    return "other"
+
+
 class _Entry:
     __slots__ = (
+        "acks",
         "angles",
         "attached_since",
         "attachments",
         "colour",
-        "data_seq",
         "data_time",
-        "dropped",
         "frames",
         "id",
         "kind",
+        "last_ack",
         "last_heard",
         "last_seen",
+        "node_type",
         "parent",
-        "restarts",
-        "seq",
+        "raw",
         "slot",
-        "slot_rotations",
+        "slots",
     )
 
     def __init__(self, cid: int):
         self.id = cid
         self.kind: str | None = None
+        self.node_type: int | None = None
         self.colour: tuple[int, int, int] | None = None
         self.parent: int | None = None
         self.slot = 0
         self.last_seen = -np.inf
         self.last_heard = -np.inf
         self.attached_since = -np.inf
-        self.seq: int | None = None
         self.angles: tuple[float, ...] | None = None
+        self.raw: tuple[int, ...] | None = None
         self.data_time: float | None = None
-        self.data_seq: int | None = None
-        self.slot_rotations: tuple | None = None
-        self.frames = self.dropped = self.restarts = self.attachments = 0
+        self.slots: dict[int, tuple[float, float, float]] = {}
+        self.last_ack: AckRecord | None = None
+        self.frames = self.acks = self.attachments = 0
 
 
 class DeviceTopology:
-    """The parent→children table of a device, fed with decoded messages.
+    """The parent→children table of a device, fed with decoded records.
 
     Parameters
     ----------
@@ -287,34 +329,33 @@ class DeviceTopology:
         slots[slot] = e.id
         e.parent, e.slot = parent, slot
 
-    def observe(self, message: Message, now: float) -> None:
-        """Apply one decoded message received at clock time ``now``."""
-        m = message
-        if m.parent == m.creator:
-            raise DeviceError(f"component {m.creator} cannot be its own parent")
-        e = self._get(m.creator)
-        if e.seq is not None and now - e.last_seen <= self.timeout:
-            step = (m.seq - e.seq) % 65536
-            if 1 <= step < SEQ_RESTART_GAP:
-                e.dropped += step - 1
-            else:
-                e.restarts += 1
-        e.seq = m.seq
+    def observe(self, record: Record, now: float) -> None:
+        """Apply one decoded record received at clock time ``now``."""
+        r = record
+        self_relayed = r.relayed and r.relayer == r.creator
+        e = self._get(r.creator)
         e.frames += 1
         e.last_seen = max(e.last_seen, now)
         self._hear(e, now)
-        if m.parent != 0:
-            self._hear(self._get(m.parent), now)
-        self._place(e, m.parent, m.slot)
-        if isinstance(m, DataMessage):
-            e.angles, e.data_time, e.data_seq = m.angles, now, m.seq
-            if e.kind is None:
-                e.kind = "joint"
-        elif isinstance(m, TypeMessage):
-            e.kind = "splitter" if m.kind == KIND_SPLITTER else "joint"
-            e.colour = m.colour
-        elif isinstance(m, ChildMessage):
-            e.slot_rotations = m.rotations
+        if not self_relayed:
+            if r.relayed:
+                self._hear(self._get(r.relayer), now)
+                self._place(e, r.relayer, r.port)
+            else:
+                self._place(e, 0, 0)
+        if isinstance(r, DataRecord):
+            if not self_relayed:  # in data mode 2 a joint's distal half speaks through its brother
+                e.angles, e.raw, e.data_time = tuple(r.angles), r.raw, now
+                if e.kind is None:
+                    e.kind = "joint"
+        elif isinstance(r, InitRecord):
+            if not self_relayed:
+                e.node_type, e.kind, e.colour = r.node_type, _kind(r.node_type), tuple(r.colour)
+        elif isinstance(r, SplitterRecord):
+            e.slots[r.slot] = tuple(r.angles)
+        elif isinstance(r, AckRecord):
+            e.acks += 1
+            e.last_ack = r
         self.version += 1
 
     def attached(self, now: float) -> set[int]:
@@ -338,13 +379,16 @@ class DeviceTopology:
     def snapshot(self, now: float, *, connected: bool = True, link: LinkStats | None = None) -> DeviceState:
         """An immutable :class:`DeviceState` as of clock time ``now``."""
         live = self.attached(now)
-        joints = [e for e in self._entries.values() if e.angles is not None]
+        joints = [e for e in self._entries.values() if e.angles is not None and e.kind == "joint"]
         rotations = joint_rotation(np.array([e.angles for e in joints])) if joints else np.empty((0, 4))
-        rotation_of = {e.id: _readonly(r.copy()) for e, r in zip(joints, rotations, strict=True)}
-        components = {
-            e.id: ComponentState(
+        rotation_of = {e.id: _readonly(np.array(r)) for e, r in zip(joints, rotations, strict=True)}
+        components = {}
+        for e in self._entries.values():
+            slots = dict(sorted(e.slots.items())) if e.slots else None
+            components[e.id] = ComponentState(
                 id=e.id,
                 kind=e.kind,
+                node_type=e.node_type,
                 colour=e.colour,
                 parent=e.parent,
                 slot=e.slot,
@@ -353,17 +397,18 @@ class DeviceTopology:
                 last_heard=e.last_heard,
                 attached_since=e.attached_since,
                 angles=None if e.angles is None else _readonly(np.array(e.angles)),
+                raw=e.raw,
                 rotation=rotation_of.get(e.id),
                 data_time=e.data_time,
-                data_seq=e.data_seq,
-                slot_rotations=None if e.slot_rotations is None else _readonly(np.array(e.slot_rotations)),
+                slot_angles=None if slots is None else MappingProxyType(slots),
+                slot_rotations=None
+                if slots is None
+                else _readonly(splitter_rotation(np.array(list(slots.values())))),
                 frames=e.frames,
-                dropped=e.dropped,
-                restarts=e.restarts,
+                acks=e.acks,
+                last_ack=e.last_ack,
                 attachments=e.attachments,
             )
-            for e in self._entries.values()
-        }
         children = {
             p: tuple(slots[s] for s in sorted(slots) if slots[s] in live)
             for p, slots in self._slots.items()

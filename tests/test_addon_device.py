@@ -4,9 +4,14 @@ properties; the poses Blender ends up with are checked against what the simulato
 
 import importlib.util
 
+import numpy as np
 import pytest
 
+from tangible.protocol import MIN_ID
+
 from .blender import run_blender
+
+J = MIN_ID  # the simulated pieces carry firmware ids: J + 11, ...
 
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("bpy") is None, reason="needs bpy (the dev extra)")
 
@@ -23,7 +28,7 @@ from solver import hands
 from tangible import (SPLITTERS, DeviceTree, Faults, Piece, PoseSpace, RandomMotion, Simulator, joint_angles,
                       joint_rotation)
 from tangible import rotations as rot
-from tangible.protocol import DataMessage
+from tangible.protocol import MIN_ID as J, DataRecord
 bpy.ops.wm.read_factory_settings(use_empty=True)
 scene = bpy.context.scene
 hand, armature = assets.hand_objects(hands.make_hand("human"), "Hand", scene.collection)
@@ -34,10 +39,11 @@ settings = scene.contact_edit_device
 settings.armature = armature
 NAMES = [b.name for b in armature.data.bones]  # parents first, as the session orders them
 
-# Joint 11 on the host, a T splitter 12 with the chain 13-15 in one slot and 14 in the other.
-DEVICE = DeviceTree([Piece(11, "joint"), Piece(12, "splitter", 11, splitter=SPLITTERS["T"]),
-                     Piece(13, "joint", 12, 0), Piece(15, "joint", 13), Piece(14, "joint", 12, 1)])
-BONES = {11: "hand", 13: "index_1", 15: "index_2", 14: "thumb_1"}
+# Joint 11 on the host, a T splitter 12 with the chain 13-15 in one slot and 14 in the other (ids J + n).
+DEVICE = DeviceTree([Piece(J + 11, "joint"), Piece(J + 12, "splitter", J + 11, splitter=SPLITTERS["T"]),
+                     Piece(J + 13, "joint", J + 12, 0), Piece(J + 15, "joint", J + 13),
+                     Piece(J + 14, "joint", J + 12, 1)])
+BONES = {J + 11: "hand", J + 13: "index_1", J + 15: "index_2", J + 14: "thumb_1"}
 for name, mode in {"hand": "QUATERNION", "index_2": "ZXY", "thumb_1": "AXIS_ANGLE"}.items():
     armature.pose.bones[name].rotation_mode = mode  # index_1 stays XYZ
 
@@ -97,9 +103,9 @@ def sample_poses(n, seed):
     return action, samples
 
 def truth(simulator):
-    '''Joint rotations the simulator sent intact, by (joint, sequence number).'''
-    return {(s.message.creator, s.message.seq): joint_rotation(s.message.angles)
-            for s in simulator.history if s.intact and isinstance(s.message, DataMessage)}
+    '''Joint rotations the simulator sent intact, by (joint, raw angles of the record).'''
+    return {(s.record.creator, s.record.raw): s.rotation
+            for s in simulator.history if s.intact and isinstance(s.record, DataRecord)}
 
 def session():
     return device_session.sessions[armature.name]
@@ -170,7 +176,7 @@ def test_driven_bones_equal_simulated_joints_through_corrupted_frames(tmp_path):
             bpy.ops.contact_edit.device_update()
             ticks.append(time.perf_counter() - started)
             state = session().state
-            seen += [(j, state.components[j].data_seq, basis(BONES[j])) for j in BONES]
+            seen += [(j, state.components[j].raw, basis(BONES[j])) for j in BONES]
             keys = np.array([basis(NAMES[b]) for b in bound])
             expected = oracle(keys)
             interpolation_error = max(interpolation_error, max(
@@ -242,14 +248,14 @@ def test_silence_freezes_the_pose_and_says_so_and_stop_restores_it(tmp_path):
             return Live.modal(live, window, type("Event", (), {"type": "TIMER"}))
 
         # The splitter's subtree loses power: after the 2 s rule its bones hold, the rest moves on.
-        simulator.set_power(12, False)
-        detached = reader.wait_for(lambda s: not s.components[13].attached, 4.0) is not None
+        simulator.set_power(J + 12, False)
+        detached = reader.wait_for(lambda s: not s.components[J + 13].attached, 4.0) is not None
         _, subtree_report = reported(bpy.ops.contact_edit.device_update)
         live_steps = [timer_step(), timer_step()]
         subtree = ["index_1", "index_2", "thumb_1"]
         subtree_drift, live_motion = still(subtree), still(["hand"])
-        simulator.set_power(12, True)
-        reader.wait_for(lambda s: all(s.components[j].attached for j in (13, 14, 15)), 2.0)
+        simulator.set_power(J + 12, True)
+        reader.wait_for(lambda s: all(s.components[J + j].attached for j in (13, 14, 15)), 2.0)
         _, back_report = reported(bpy.ops.contact_edit.device_update)
         live_steps.append(timer_step())
         moving_again = still(subtree)
@@ -293,7 +299,8 @@ def test_silence_freezes_the_pose_and_says_so_and_stop_restores_it(tmp_path):
     assert out["moving_at_start"] > 1.0
     assert out["detached"]
     report = out["subtree_report"]
-    assert "Warning" in report and "13, 14, 15" in report and "frozen" in report and "'index_1'" in report
+    assert "Warning" in report and f"{J + 13}, {J + 14}, {J + 15}" in report and "frozen" in report
+    assert "'index_1'" in report
     assert out["subtree_drift"] < 1e-6 and out["live_motion"] > 0.1
     assert "Live on" in out["back_report"] and out["moving_again"] > 0.1
     # The live timer reports the freeze once, and the recovery; once stopped it ends and removes its timer.
@@ -327,14 +334,15 @@ def test_calibration_shape_keys_properties_recording_and_sample_poses(tmp_path):
         face.shape_key_add(name="Basis"); face.shape_key_add(name="Smile").value = 0.2
         face["open"] = -1.0
         bpy.context.view_layer.objects.active = armature
-        bind_bones({11: "hand", 13: "index_1", 14: "thumb_1"})
-        bpy.ops.contact_edit.device_bind(joint=15, target="SHAPE_KEY", object_name="Face", shape_key="Smile",
-                                         channel="bend_a", source_min=0.0, source_max=np.pi / 2)
-        bpy.ops.contact_edit.device_bind(joint=14, target="PROPERTY", object_name="Face",
+        bind_bones({J + 11: "hand", J + 13: "index_1", J + 14: "thumb_1"})
+        bpy.ops.contact_edit.device_bind(joint=J + 15, target="SHAPE_KEY", object_name="Face",
+                                         shape_key="Smile", channel="bend_a", source_min=0.0,
+                                         source_max=np.pi / 2)
+        bpy.ops.contact_edit.device_bind(joint=J + 14, target="PROPERTY", object_name="Face",
                                          data_path='["open"]', channel="twist", source_min=0.0,
                                          source_max=np.pi, target_max=2.0)
-        angles = np.zeros((4, 4))  # the joints' angles, in DEVICE.joints order (11, 13, 15, 14), set by hand
-        simulator = Simulator(DEVICE, motion=lambda t: angles.copy(), seed=6).start()
+        angles = np.zeros((4, 4))  # the joints' angles (record order), in DEVICE.joints order, set by hand
+        simulator = Simulator(DEVICE, motion=lambda t: joint_rotation(angles), seed=6).start()
         settings.port = simulator.path
         bpy.ops.contact_edit.device_connect()
         reader = session().reader
@@ -342,16 +350,17 @@ def test_calibration_shape_keys_properties_recording_and_sample_poses(tmp_path):
         def hold(target):
             '''Hold the device at angles (4, 4) and update once the reader has them.'''
             angles[:] = target
-            ok = reader.wait_for(lambda s: all(np.abs(s.components[j].angles - target[i]).max() < 1e-3
+            want = joint_rotation(target)
+            ok = reader.wait_for(lambda s: all(rot.angle(s.components[j].rotation, want[i]) < 2e-3
                                                for i, j in enumerate(order)), 2.0)
             assert ok is not None
             bpy.ops.contact_edit.device_update()
             return {j: joint_rotation(target[i]) for i, j in enumerate(order)}
         def random_angles():
-            a = rng.uniform(-0.6, 0.6, (4, 4)); a[:, 2:] = rng.uniform(-3, 3, (4, 2))
+            a = rng.uniform(-0.6, 0.6, (4, 4)); a[:, [0, 3]] = rng.uniform(-3, 3, (4, 2))
             return a
         def worst(expected):
-            return max(degrees(basis(BONES[j]), q) for j, q in expected.items() if j != 15)
+            return max(degrees(basis(BONES[j]), q) for j, q in expected.items() if j != J + 15)
 
         settings.active_binding = 3  # the shape key
         shown_live = panel_shows()
@@ -376,7 +385,7 @@ def test_calibration_shape_keys_properties_recording_and_sample_poses(tmp_path):
         smile = face.data.shape_keys.key_blocks["Smile"]
         numbers = []
         for bend_a, twist in ((np.pi / 4, np.pi / 2), (np.pi / 8, np.pi / 4), (-0.3, 0.2)):
-            target = np.zeros((4, 4)); target[2, 0] = bend_a; target[3, 2:] = twist / 2
+            target = np.zeros((4, 4)); target[2, 1] = bend_a; target[3, [0, 3]] = twist / 2
             hold(target)
             numbers.append((smile.value, face["open"]))
 
@@ -458,7 +467,9 @@ def test_calibration_shape_keys_properties_recording_and_sample_poses(tmp_path):
     # The panel: live joints to bind, calibration, the scalar binding's settings; Connect once stopped.
     live = out["shown_live"]
     assert (
-        "Joint 11" in live and "contact_edit.device_calibrate" in live and "contact_edit.device_stop" in live
+        any(text.startswith(f"Joint {J + 11} (") for text in live)  # its id and colour
+        and "contact_edit.device_calibrate" in live
+        and "contact_edit.device_stop" in live
     )
     assert "shape_key" in live and "channel" in live and "bone" in live and "Face: Smile" in live
     assert "contact_edit.device_connect" in out["shown_stopped"]
@@ -543,8 +554,8 @@ def test_bad_input_is_refused_clearly_and_changes_nothing(tmp_path):
     assert "carrier-pigeon://coop" in e["bad url"]
     assert "sends data, but no puppet device messages" in e["garbage"] and "right port" in e["garbage"]
     assert "Joint 99 of the bindings is not attached" in e["missing joint"]
-    assert "attached joints: 11, 13, 15, 14" in e["missing joint"]
-    assert "'index_1' is bound to joints 13 and 99" in e["bone bound twice"]
+    assert f"attached joints: {J + 11}, {J + 13}, {J + 15}, {J + 14}" in e["missing joint"]
+    assert f"'index_1' is bound to joints {J + 13} and 99" in e["bone bound twice"]
     for key in ("update without device", "calibrate without device", "stop without device"):
         assert "No device is driving 'Hand rig': connect one first" in e[key], key
     assert "Choose the sample poses" in e["propose without samples"]
@@ -572,11 +583,11 @@ def test_proposed_device_binds_and_drives_through_the_builtin_simulator(tmp_path
             time.sleep(0.025)
             bpy.ops.contact_edit.device_update()
             state = session().state
-            seen += [(j, state.components[j].data_seq, basis(bone)) for j, bone in live.items()]
+            seen += [(j, state.components[j].raw, basis(bone)) for j, bone in live.items()]
         followers = len(session().written_bones) - len(live)
         simulator.stop()
         sent = truth(simulator)
-        rest = {j: np.array(r) for j, (_, r) in planned.items()}
+        rest = {J + j: np.array(r) for j, (_, r) in planned.items()}  # the simulated pieces' ids
         errors = [degrees(q, rot.multiply(rot.conjugate(rest[j]), sent[j, seq])) for j, seq, q in seen]
         bpy.ops.contact_edit.device_stop()
         result(dict(proposed=list(proposed), report=report, planned={j: b for j, (b, _) in planned.items()},
@@ -590,9 +601,61 @@ def test_proposed_device_binds_and_drives_through_the_builtin_simulator(tmp_path
     )
     assert out["proposed"] == ["FINISHED"] and "Proposed 4 joints and" in out["report"]
     assert len(out["planned"]) == 4 and out["had_plan"] and out["plan_left"] == ""
-    assert {int(k): v for k, v in out["live"].items()} == {int(k): v for k, v in out["planned"].items()}
+    # The simulated pieces carry firmware ids; connecting re-pointed the bindings from the plan to them.
+    assert {int(k) - J: v for k, v in out["live"].items()} == {int(k): v for k, v in out["planned"].items()}
     assert out["instructions"].splitlines()[1] == "host" and "drives bone" in out["instructions"]
     print(f"\nproposed device driven through the simulator: max bone error {out['max_error']:.4f}°")
     assert out["max_error"] < 0.5 and out["compared"] > 100 and out["corrupted"] > 0
     assert out["followers"] == 16 - 4  # every non-root bone the device does not drive follows
     assert out["threads"] == []  # the session closed its simulator and reader
+
+
+def test_zero_on_the_device_and_identify_blink(tmp_path):
+    """*Zero Joints on Device and Calibrate* sends the firmware's zero command to every bound joint (their
+    flash takes the readings as zero), waits for the acknowledgements and calibrates on the readings taken
+    after; *Identify* blinks one joint's green LED on and off and leaves it off."""
+    out = run_blender(
+        """
+        bind_bones({J + 11: "hand", J + 13: "index_1"})
+        rng = np.random.default_rng(12)
+        angles = rng.uniform(-0.5, 0.5, (4, 4))  # held still, in DEVICE.joints order
+        simulator = Simulator(DEVICE, motion=lambda t: joint_rotation(angles), seed=2).start()
+        settings.port = simulator.path
+        bpy.ops.contact_edit.device_connect()
+        reader = session().reader
+        assert reader.wait_for(lambda s: all(s.components.get(j) is not None and s.components[j].rotation
+                                             is not None for j in (J + 11, J + 13)), 2.0) is not None
+        before = {j: simulator.firmware(j).zero for j in (J + 11, J + 13, J + 14)}
+        result_ = bpy.ops.contact_edit.device_calibrate(pose="REST", zero_device=True)
+        after = {j: simulator.firmware(j).zero for j in (J + 11, J + 13, J + 14)}
+        state = reader.state()
+        zeroed = [before[j] != after[j] for j in (J + 11, J + 13)]
+        untouched = before[J + 14] == after[J + 14]  # the unbound joint is left alone
+        order = DEVICE.joints
+        # The zeroed joints now read their proximal twist and both bends as zero (the firmware leaves the
+        # distal twist's zero alone), within a few LSB of the 14-bit readings.
+        straight = max(np.abs(state.components[j].angles[:3]).max() for j in (J + 11, J + 13))
+        bpy.ops.contact_edit.device_update()
+        at_rest = max(degrees(basis(BONES[j]), rot.IDENTITY) for j in (J + 11, J + 13))
+
+        bpy.ops.contact_edit.device_identify(joint=J + 13)
+        greens, t0 = [], time.monotonic()
+        while time.monotonic() - t0 < (device_session.BLINKS + 1) * device_session.BLINK_PERIOD + 0.3:
+            bpy.ops.contact_edit.device_update()
+            greens.append(simulator.firmware(J + 13).leds[1])
+            time.sleep(0.02)
+        flips = sum(a != b for a, b in zip(greens, greens[1:]))
+        other = simulator.firmware(J + 11).leds[1]
+        bpy.ops.contact_edit.device_stop()
+        simulator.close()
+        result(dict(finished=sorted(result_), zeroed=zeroed, untouched=untouched, straight=float(straight),
+                    at_rest=at_rest, flips=flips, last=greens[-1], other=other))
+        """,
+        tmp_path,
+        setup=SETUP,
+    )
+    assert out["finished"] == ["FINISHED"] and out["zeroed"] == [True, True] and out["untouched"]
+    assert out["straight"] < 4 * 2 * np.pi / 16384  # a few 14-bit steps
+    assert out["at_rest"] < 0.1
+    # On and off BLINKS times (a lost LED command may skip one), ending off; the other joint's LED never lit.
+    assert out["flips"] >= 2 * 4 - 3 and out["last"] is False and out["other"] is False

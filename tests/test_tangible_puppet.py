@@ -23,7 +23,7 @@ from tangible import (
 from tangible import rotations as rot
 from tangible.creatures import creature
 from tangible.errors import DeviceError, RigError
-from tangible.protocol import DataMessage, Decoder, TypeMessage
+from tangible.protocol import MIN_ID, NODE_JOINT_TUT_TU, DataRecord, InitRecord, ReplyParser
 
 HALF_DEGREE = np.radians(0.5)
 
@@ -35,10 +35,20 @@ def state_with(readings: dict, now=0.0, parents=None):
     previous = 0
     for cid, angles in readings.items():
         parent = parents.get(cid, previous)
-        topo.observe(TypeMessage(cid, parent, 0, 0, 0, (1, 2, 3)), now)
-        topo.observe(DataMessage(cid, parent, 0, 1, tuple(angles)), now)
+        topo.observe(InitRecord(cid, parent, 0, NODE_JOINT_TUT_TU, (1, 2, 3)), now)
+        topo.observe(DataRecord(cid, parent, 0, tuple(angles)), now)
         previous = cid
     return topo.snapshot(now)
+
+
+def polled_state(sim: Simulator, seconds: float):
+    """The table a host builds polling the simulated device for ``seconds`` (simulated time)."""
+    topo, parser = DeviceTopology(), ReplyParser()
+    for t, poll, data in sim.polled(seconds):
+        for m in parser.poll(poll) + parser.feed(data):
+            topo.observe(m, t)
+    sim.close()
+    return topo.snapshot(sim.time)
 
 
 def test_binding_maps_readings_relative_to_calibration():
@@ -58,10 +68,10 @@ def test_binding_maps_readings_relative_to_calibration():
 @pytest.mark.parametrize(
     ("channel", "angles", "value"),
     [
-        ("bend_a", [0.5, 0, 0, 0], 0.5 / (np.pi / 2)),
-        ("bend_b", [0, -0.5, 0, 0], 0.0),  # clamped at the bottom of the target range
-        ("twist", [0, 0, 0.4, 0.4], 0.8 / (np.pi / 2)),
-        ("bend", [0.3, 0.4, 2.0, 1.0], np.arccos(np.cos(0.3) * np.cos(0.4)) / (np.pi / 2)),
+        ("bend_a", [0, 0.5, 0, 0], 0.5 / (np.pi / 2)),
+        ("bend_b", [0, 0, -0.5, 0], 0.0),  # clamped at the bottom of the target range
+        ("twist", [0.4, 0, 0, 0.4], 0.8 / (np.pi / 2)),
+        ("bend", [2.0, 0.3, 0.4, 1.0], np.arccos(np.cos(0.3) * np.cos(0.4)) / (np.pi / 2)),
         ("twist_distal", [0, 0, 0, 3.0], 1.0),  # clamped at the top
     ],
 )
@@ -83,12 +93,12 @@ def test_calibrate_then_evaluate_and_freeze_missing_joints():
         scalars=[ScalarBinding(12, "smile", "bend_a", (0.0, 1.0), (0.0, 1.0))],
         samples=samples,
     )
-    at_rest = {11: [0.2, 0.1, 0.5, 0.0], 12: [-0.3, 0.2, 0.0, 1.0]}
+    at_rest = {11: [0.5, 0.2, 0.1, 0.0], 12: [0.0, -0.3, 0.2, 1.0]}  # record order
     puppet = puppet.calibrate(state_with(at_rest))
     first = puppet.evaluate(state_with(at_rest))
     assert rot.angle(first.rotations[[2, 9]], rot.IDENTITY).max() < 1e-9
     assert first.driven[[2, 9]].all() and first.driven.sum() == 2 and first.missing == ()
-    moved = {11: [0.6, 0.1, 0.5, 0.0], 12: [-0.1, 0.2, 0.0, 1.0]}
+    moved = {11: [0.5, 0.6, 0.1, 0.0], 12: [0.0, -0.1, 0.2, 1.0]}
     pose = puppet.evaluate(state_with(moved), previous=first)
     expect = rot.multiply(rot.conjugate(joint_rotation(at_rest[11])), joint_rotation(moved[11]))
     assert rot.angle(pose.rotations[2], expect) < 1e-9
@@ -122,26 +132,22 @@ def test_match_device_pairs_pieces_by_shape_and_names_differences():
             Piece(4, "joint", 2, 1),
         ]
     )
+    L = MIN_ID  # live pieces carry firmware ids
     live = DeviceTree(
         [
-            Piece(901, "joint"),
-            Piece(902, "splitter", 901, 0, splitter=SPLITTERS["T"]),
-            Piece(904, "joint", 902, 1),
-            Piece(903, "joint", 902, 0),
-            Piece(905, "joint", 903, 0),  # an extra piece the plan does not use
+            Piece(L + 901, "joint"),
+            Piece(L + 902, "splitter", L + 901, 0, splitter=SPLITTERS["T"]),
+            Piece(L + 904, "joint", L + 902, 1),
+            Piece(L + 903, "joint", L + 902, 0),
+            Piece(L + 905, "joint", L + 903, 0),  # an extra piece the plan does not use
         ]
     )
-    topo, dec = DeviceTopology(), Decoder()
-    sim = Simulator(live, seed=0)
-    for sent, data in sim.stream(1.0):
-        for m in dec.feed(data):
-            topo.observe(m, sent.time)
-    sim.close()
-    state = topo.snapshot(1.0)
-    assert match_device(plan, state) == {1: 901, 2: 902, 3: 903, 4: 904}
+    state = polled_state(Simulator(live, seed=0), 1.0)
+    assert match_device(plan, state) == {1: L + 901, 2: L + 902, 3: L + 903, 4: L + 904}
     wrong = DeviceTree([Piece(1, "joint"), Piece(2, "joint", 1), Piece(3, "joint", 2)])
     with pytest.raises(
-        DeviceError, match=r"planned piece 1 \(live 901\) should have a joint in slot 0, found splitter 902"
+        DeviceError,
+        match=rf"planned piece 1 \(live {L + 901}\) should have a joint in slot 0, found splitter {L + 902}",
     ):
         match_device(wrong, state)
 
@@ -154,20 +160,13 @@ def test_from_reduction_to_the_rig_through_the_simulated_device():
     s = 4
     joints = r.device.joints
     readings = rot.multiply(np.array([r.rest[p] for p in joints]), r.rotations[s])  # R = rest · Q
-    angles = joint_angles(readings)
-    offset = {p.id: p.id + 1000 for p in r.device} | {0: 0}
+    offset = {p.id: p.id + MIN_ID + 1000 for p in r.device} | {0: 0}
     live = DeviceTree(
         Piece(offset[p.id], p.kind, offset[p.parent], p.slot, p.colour, p.splitter) for p in r.device
     )
-    sim = Simulator(live, motion=KeyframeMotion([0.0], angles[None]), seed=1)
-    topo, dec = DeviceTopology(), Decoder()
-    for sent, data in sim.stream(1.0):
-        for m in dec.feed(data):
-            topo.observe(m, sent.time)
-    sim.close()
-    state = topo.snapshot(1.0)
+    state = polled_state(Simulator(live, motion=KeyframeMotion([0.0], readings[None]), seed=1), 1.0)
     ids = match_device(r.device, state)
-    assert ids == {p.id: p.id + 1000 for p in r.device}
+    assert ids == {p.id: offset[p.id] for p in r.device}
     puppet = Puppet.from_reduction(r, ids, samples)
     pose = puppet.evaluate(state)
     bones = [r.bones[p] for p in joints]

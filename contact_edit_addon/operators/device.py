@@ -223,6 +223,12 @@ class CONTACT_EDIT_OT_device_calibrate(bpy.types.Operator):
         ],
         default="REST",
     )
+    zero_device: bpy.props.BoolProperty(
+        name="Zero the joints",
+        description="Also store this shape as each bound joint's zero on the device itself (in its flash, "
+        "the firmware's zero command), so that any host reads the joints straight in it",
+        default=False,
+    )
 
     @classmethod
     def poll(cls, context):
@@ -233,12 +239,35 @@ class CONTACT_EDIT_OT_device_calibrate(bpy.types.Operator):
 
     def _calibrate(self, context):
         session = live_session(context)
-        count = session.calibrate(context.scene.contact_edit_device, self.pose == "START")
+        count = session.calibrate(context.scene.contact_edit_device, self.pose == "START", self.zero_device)
         session.tick(context.scene)
         what = "rest pose" if self.pose == "REST" else "starting pose"
+        zeroed = ", zeroed on the device" if self.zero_device else ""
         self.report(
-            {"INFO"}, f"Calibrated {count} joint{'s' * (count != 1)}: the device's shape is the {what}"
+            {"INFO"},
+            f"Calibrated {count} joint{'s' * (count != 1)}{zeroed}: the device's shape is the {what}",
         )
+        return {"FINISHED"}
+
+
+class CONTACT_EDIT_OT_device_identify(bpy.types.Operator):
+    """Blink the joint's green LED on the device, to find it"""
+
+    bl_idname = "contact_edit.device_identify"
+    bl_label = "Identify Joint"
+
+    joint: bpy.props.IntProperty(name="Joint", description="The joint's id", min=0)
+
+    @classmethod
+    def poll(cls, context):
+        return poll_live(cls, context)
+
+    def execute(self, context):
+        return report_errors(self, lambda: self._identify(context))
+
+    def _identify(self, context):
+        live_session(context).identify(self.joint)
+        self.report({"INFO"}, f"Joint {self.joint} blinks its green LED")
         return {"FINISHED"}
 
 
@@ -477,6 +506,7 @@ classes = (
     CONTACT_EDIT_OT_device_update,
     CONTACT_EDIT_OT_device_stop,
     CONTACT_EDIT_OT_device_calibrate,
+    CONTACT_EDIT_OT_device_identify,
     CONTACT_EDIT_OT_device_key,
     CONTACT_EDIT_OT_device_bind,
     CONTACT_EDIT_OT_device_unbind,
