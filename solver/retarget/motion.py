@@ -72,8 +72,6 @@ either complete or untouched.
 from __future__ import annotations
 
 import contextlib
-import os
-import secrets
 import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -84,6 +82,7 @@ from numpy.lib import format as npy_format
 
 from geodesics import MeshError, SurfacePoints, TriMesh
 from geodesics.errors import describe_ids
+from geodesics.files import atomic_file
 
 __all__ = ["FORMAT", "VERSION", "Contacts", "Motion", "MotionError"]
 
@@ -505,23 +504,12 @@ class Motion:
     def save(self, path, compressed: bool = False) -> None:
         """Write the motion file atomically (a complete file or none; an existing file is replaced only
         once the new one is complete). ``compressed`` deflates the members (smaller, slower)."""
-        path = Path(path)
-        # Not tempfile.mkstemp: its files are private (0600); this one gets the umask's permissions.
-        temp = path.parent / f".{path.name}.{os.getpid()}.{secrets.token_hex(6)}.tmp"
-        handle = os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
-        try:
-            with os.fdopen(handle, "wb") as f:
-                mode = zipfile.ZIP_DEFLATED if compressed else zipfile.ZIP_STORED
-                with zipfile.ZipFile(f, "w", compression=mode, allowZip64=True) as archive:
-                    for name, value in self.to_arrays().items():  # as np.savez writes them
-                        with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
-                            npy_format.write_array(member, np.asanyarray(value), allow_pickle=False)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(temp, path)
-        except BaseException:
-            Path(temp).unlink(missing_ok=True)
-            raise
+        with atomic_file(path) as f:
+            mode = zipfile.ZIP_DEFLATED if compressed else zipfile.ZIP_STORED
+            with zipfile.ZipFile(f, "w", compression=mode, allowZip64=True) as archive:
+                for name, value in self.to_arrays().items():  # as np.savez writes them
+                    with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
+                        npy_format.write_array(member, np.asanyarray(value), allow_pickle=False)
 
     @classmethod
     def load(cls, path) -> Motion:
