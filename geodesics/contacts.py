@@ -307,7 +307,7 @@ class ContactSet:
         """Validate a contact file's content and build the set (see :meth:`load`)."""
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise ContactError(f'{source}: not a contact file (expected "format": "{FORMAT}")')
-        if data.get("version") != VERSION:
+        if type(data.get("version")) is not int or data["version"] != VERSION:  # true == 1 in Python
             raise ContactError(
                 f"{source}: version {data.get('version')!r} is not supported (this build reads {VERSION})"
             )
@@ -385,12 +385,19 @@ def _complex_array(values, where: str) -> np.ndarray:
     return a[:, 0] + 1j * a[:, 1]
 
 
+def _indices(values, where: str) -> np.ndarray:
+    """A JSON list of integers as int64, checked before numpy sees it: 1.5 or true would silently become
+    an index, 2**70 would overflow."""
+    if not isinstance(values, list) or not all(type(v) is int and -(2**63) <= v < 2**63 for v in values):
+        raise ContactError(f"{where} must be a list of integer indices")
+    return np.array(values, dtype=np.int64)
+
+
 def _surface_points(data, mesh: TriMesh, where: str) -> SurfacePoints:
     if not isinstance(data, dict):
         raise ContactError(f"{where} must be an object with 'faces' and 'bary'")
-    points = SurfacePoints(
-        np.asarray(data["faces"], dtype=np.int64), np.asarray(data["bary"], dtype=np.float64)
-    )
+    faces = _indices(_field(data, "faces", list, where), f"{where}.faces")
+    points = SurfacePoints(faces, np.asarray(_field(data, "bary", list, where), dtype=np.float64))
     return points.validate(mesh)
 
 
@@ -406,7 +413,7 @@ def _patch(entry: dict, mesh: TriMesh, remap: bool) -> ContactPatch:
     lengths = np.asarray(axis_data["lengths"], dtype=np.float64)
     turning = _complex_array(axis_data["turning"], "axis.turning")
     tangents = _complex_array(axis_data["tangents"], "axis.tangents")
-    binding = np.asarray(entry["binding"], dtype=np.int64)
+    binding = _indices(_field(entry, "binding", list, "the patch"), "binding")
     coords = _complex_array(entry["coords"], "coords")
     if m < 2 or lengths.shape != (m - 1,) or turning.shape != (m,) or tangents.shape != (m,):
         raise ContactError(

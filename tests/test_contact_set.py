@@ -160,6 +160,18 @@ def test_files_for_another_mesh_are_refused_unless_remapped(hand, tmp_path):
         (lambda d: d["patches"][1].update(name="palm"), "used twice"),
         (lambda d: d["patches"][0]["axis"].update(turning=[[2.0, 0.0]]), "patch 'palm'"),
         (lambda d: d["patches"][1].update(link={"length": "far"}), "link.length"),
+        # A float or a boolean where an index or the version belongs is an error, not truncated.
+        (lambda d: d.update(version=True), "version True is not supported"),
+        (
+            lambda d: d["patches"][0].update(points={"faces": [1.5], "bary": [[1, 0, 0]]}),
+            "patch 'palm'.*points.faces must be a list of integer indices",
+        ),
+        (
+            lambda d: d["patches"][0].update(points={"faces": [True], "bary": [[1, 0, 0]]}),
+            "points.faces must be a list of integer indices",
+        ),
+        (lambda d: d["patches"][0].update(binding=[0.5] * 3), "binding must be a list of integer indices"),
+        (lambda d: d["patches"][0].pop("binding"), "'binding' is missing"),
     ],
 )
 def test_malformed_files_get_clear_errors(hand, tmp_path, change, message):
