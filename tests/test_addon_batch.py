@@ -168,10 +168,13 @@ def test_readme_blender_background_line(demo, tmp_path):
         exec({body!r})
         bpy.ops.wm.open_mainfile(filepath="posed.blend")
         keyed = keyed_frames(bpy.data.objects["Hand rig"])
-        result(dict(keyed=keyed, summary=bpy.context.scene.contact_edit.last_solve))
+        scene = bpy.context.scene
+        result(dict(keyed=keyed, summary=scene.contact_edit.last_solve,
+                    frames=[scene.frame_start, scene.frame_end]))
         """,
         tmp_path,
         setup=OPEN,
     )
-    assert found["keyed"] == [1.0, 24.0, 48.0]
+    assert found["keyed"] == [1.0, 12.0, 24.0]  # the README's frame, inside the demo's timeline
+    assert found["frames"] == [1, 24]
     assert "contacts in" in found["summary"]

@@ -41,3 +41,22 @@ def test_bench_tangible_prints_link_interpolation_and_reduction_rows(capsys, mon
     assert "pose interpolation per update, 100 bones" in out
     assert "Fig. 7: 20 bones, 4 poses,  0 joints" in out and "pose error 100.0%" in out
     assert "Fig. 7: 20 bones, 4 poses,  3 joints" in out
+
+
+def test_version_and_help_say_what_the_command_is(capsys):
+    from importlib.metadata import version
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out.strip() == f"contact-edit {version('contact-edit')}"
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    text = capsys.readouterr().out
+    assert "Pose hands against objects" in text and "``" not in text  # not the module's raw docstring
+    with pytest.raises(SystemExit):
+        main(["ablation", "-h"])
+    assert "each term of Contact Edit's Eq. 2 removed" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        main(["synthesize", "-h"])
+    assert "the object the hand manipulates (default mug)" in capsys.readouterr().out
