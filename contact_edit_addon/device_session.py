@@ -341,8 +341,8 @@ class Session:
                 silent.append(j)
         if silent:
             raise DeviceError(
-                f"joints {', '.join(map(str, silent))} did not confirm zeroing after {ZERO_ATTEMPTS} tries; "
-                "the calibration was not changed"
+                f"joints {', '.join(map(str, silent))} did not confirm zeroing after {ZERO_ATTEMPTS} tries "
+                "(those that did are zeroed on the device); the scene's calibration was not changed"
             )
         acked = {j: self.reader.state().components[j].data_time or -np.inf for j in joints}
         fresh = self.reader.wait_for(
