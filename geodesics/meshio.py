@@ -220,6 +220,12 @@ def _mesh(vertices: np.ndarray, corners: np.ndarray, sizes: np.ndarray, kind: st
             "STL stores every triangle with its own three corners, so its triangles share no vertices; "
             "pass merge=True to join corners with equal coordinates"
         )
+    bad = np.flatnonzero((corners < 0) | (corners >= len(vertices)))
+    if bad.size:
+        raise MeshError(
+            f"faces use vertex indices {describe_ids(corners[bad])} outside 0..{len(vertices) - 1} (the file "
+            f"has {len(vertices)} vertices)"
+        )
     if merge:
         vertices, corners = _merge(vertices, corners)
     try:

@@ -10,7 +10,7 @@ import warnings
 import numpy as np
 import pytest
 import trimesh
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from geodesics import MeshError, MeshWarning, TriMesh, load_mesh, save_mesh
@@ -468,6 +468,7 @@ def good_file(tmp_path_factory, kind: str) -> bytes:
     cut=st.floats(0, 1),
     flips=st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), max_size=4),
 )
+@example(kind="ply", cut=1.0, flips=[(1.0, 1)])  # the last face's last index out of range, with merge
 def test_damaged_files_load_or_raise_mesh_errors(tmp_path_factory, kind, cut, flips):
     """Any prefix of a good file, with any bytes changed, either loads or raises a MeshError naming it."""
     data = bytearray(good_file(tmp_path_factory, kind))
