@@ -354,6 +354,13 @@ class TriMesh:
         return float(self.halfedge_lengths.mean())
 
     @cached_property
+    def signed_volume(self) -> float:
+        """The volume the faces enclose, ``Σ det(a, b, c) / 6`` (divergence theorem): positive for a closed
+        mesh whose faces point out, negative for one turned inside out; for an open mesh, that of the
+        cone from the origin."""
+        return float(np.linalg.det(self._vertices[self._faces]).sum() / 6.0)
+
+    @cached_property
     def bounding_diagonal(self) -> float:
         """Length of the bounding-box diagonal of the used vertices: the scale for tolerances."""
         used = self._vertices[np.unique(self._faces)]

@@ -8,10 +8,24 @@ the retargeting paper (Lakshmipathy et al. 2025)::
          + λp Σ_{j not root} (θ_j - θ̄_j)²       prior to the rest (or a given) pose, root excluded
          + λm Σ_q |q(θ) - s_q|² / u²            virtual markers
          + λt Σ_v max(0, -sdf(x_v(θ)) / u)²     table or ground penetration of the hand's vertices
+         + λo Σ_v max(0, -sdf_o(x_v(θ)) / u)²   penetration of the hand's vertices into the object
          + λk Σ_j ((θ_j - θ^key_j) / s_j)²      prior to a previous keyed pose (s_j = u for locations)
 
 subject to the rig's bounds ``lower <= θ <= upper``. Sums run over points, as in the papers (denser
 contact patches weigh more; Table 2 of Contact Edit). Angles are in radians.
+
+**Keeping out of the object** (λo, with ``keep_out``) is not in either paper's objective; it is the
+table term's form applied to the object itself. Eq. 2 pulls every contact point onto its target, and a
+rigid skin cannot flatten: a round fingertip pad pressed onto a mug patch of the same geodesic shape
+sinks its centre and its tip into the mug by millimetres to bring its rim down. With the object's
+signed distance in the objective the pad rests on the surface instead, its rim a little off. λo is
+large (:data:`KEEP_OUT_WEIGHT`): a vertex a millimetre inside costs what thirty contacts a centimetre
+off do, so a few hundred contacts cannot pull a fingertip into the object. (It was chosen on the
+demo's grasp, ``contact-edit demo``, started with the palm 0.5 to 4 mm off the mug: at 300 the
+deepest skin ended up to 3.2 mm inside, at 1000 up to 2.5 mm, at 3000 at most 0.07 mm, in about twice
+the evaluations.) Only skin within :data:`KEEP_OUT_BAND` of the surface is seen, which keeps the term
+cheap; skin that contacts pull right through a thin wall (into a mug's hollow) is not pushed back, so
+measure the result (the add-on's solve reports the deepest vertex).
 
 **Squared or plain distances.** Contact Edit's Eq. 2 squares the contact distances; the retargeting
 paper's Eq. 4-5 sum plain L2 distances (Γ_MD, Γ_CD). ``norm="l2"`` gives the latter for the contact and
@@ -73,6 +87,12 @@ MAX_EVALUATIONS = 2000
 NORMS = ("squared", "l2")
 #: Smoothing δ of the L2 norm at zero, in units of u (0.5 mm on a life-size hand).
 L2_SMOOTHING = 0.05
+#: The λo the add-on and :func:`solver.grasp`-style callers use when keeping the hand out of the object:
+#: 1 mm (0.1 u) inside weighs 3000 · 0.01 = 30, as thirty contacts 1 cm off do (λd = 1).
+KEEP_OUT_WEIGHT = 3000.0
+#: The keep-out term sees skin within this many units u of the object's surface (5 mm on a life-size
+#: hand): deeper inside than that, a vertex is not pushed out (see :meth:`solver.MeshSDF.evaluate`).
+KEEP_OUT_BAND = 0.5
 
 
 @dataclass(frozen=True)
@@ -80,7 +100,8 @@ class Weights:
     """The λ of each term (non-negative; zero switches a term off).
 
     d: contact distance, n: opposing normals, p: prior to the rest or given pose (root excluded),
-    m: virtual markers, t: table or ground penetration, k: prior to a previous keyed pose.
+    m: virtual markers, t: table or ground penetration, k: prior to a previous keyed pose,
+    o: penetration into the object (with ``ContactIK(keep_out=...)``).
     """
 
     d: float = 1.0
@@ -89,9 +110,10 @@ class Weights:
     m: float = 1.0
     t: float = 1.0
     k: float = 10.0
+    o: float = KEEP_OUT_WEIGHT
 
     def __post_init__(self):
-        for name in ("d", "n", "p", "m", "t", "k"):
+        for name in ("d", "n", "p", "m", "t", "k", "o"):
             value = getattr(self, name)
             try:
                 value = float(value)
@@ -181,6 +203,10 @@ class ContactIK:
     markers : Markers, optional
     obstacle : HalfSpace or Box, optional
         A table or the ground: anything with ``evaluate(points) -> (sdf, gradient)``.
+    keep_out : MeshSDF, optional
+        The object itself (closed, in the hand's space): its inside costs λo, within
+        :data:`KEEP_OUT_BAND` of its surface (see the module docstring). Anything with
+        ``evaluate(points, band)`` works here too.
     keyed : (d,) array_like, optional
         A previous keyed pose for the λk prior.
     unit : float, optional
@@ -212,6 +238,7 @@ class ContactIK:
         prior=None,
         markers: Markers | None = None,
         obstacle=None,
+        keep_out=None,
         keyed=None,
         unit: float | None = None,
         algorithm: str = "slsqp",
@@ -275,10 +302,19 @@ class ContactIK:
                 )
             self._marker_targets = targets
             sets.append(markers.points)
-        if obstacle is not None and not callable(getattr(obstacle, "evaluate", None)):
-            raise SolverError("obstacle must have evaluate(points) -> (sdf, gradient), e.g. solver.sdf.Box")
-        self.obstacle = obstacle
-        extra = np.arange(hand.mesh.n_vertices) if obstacle is not None else None
+        for name, solid in (("obstacle", obstacle), ("keep_out", keep_out)):
+            if solid is not None and not callable(getattr(solid, "evaluate", None)):
+                raise SolverError(
+                    f"{name} must have evaluate(points) -> (sdf, gradient), e.g. solver.sdf.Box or MeshSDF"
+                )
+        self.obstacle, self.keep_out = obstacle, keep_out
+        self._solids = []  # what the hand's vertices stay out of: (term, weight, signed distance)
+        if obstacle is not None:
+            self._solids.append(("table", self.weights.t, obstacle.evaluate))
+        if keep_out is not None:
+            inside = functools.partial(keep_out.evaluate, band=KEEP_OUT_BAND * self.unit)
+            self._solids.append(("penetration", self.weights.o, inside))
+        extra = np.arange(hand.mesh.n_vertices) if self._solids else None
         self._skin = hand.point_skin(sets, extra)
         # Internal variables: locations in units of u, angles in radians.
         self._scale = np.where(rig.is_rotation, 1.0, self.unit)
@@ -312,13 +348,13 @@ class ContactIK:
             terms["marker"] = w.m * value
             if with_gradient:
                 adjoint += markers.adjoint(qn, qaux, w.m * d_diff, None)
-        if self.obstacle is not None:
+        for name, weight, evaluate in self._solids:
             rows = skin.extra_rows
-            sd, sd_grad = self.obstacle.evaluate(V[rows])
+            sd, sd_grad = evaluate(V[rows])
             depth = np.maximum(-sd, 0.0) / self.unit
-            terms["table"] = w.t * float(np.sum(depth**2))
+            terms[name] = weight * float(np.sum(depth**2))
             if with_gradient:
-                adjoint[rows] += (-2 * w.t / self.unit * depth)[:, None] * sd_grad  # distinct vertices
+                adjoint[rows] += (-2 * weight / self.unit * depth)[:, None] * sd_grad  # distinct vertices
         dp = np.where(self._prior_mask, t - self.prior, 0.0)
         terms["prior"] = w.p * float(np.sum(dp**2))
         grad += 2 * w.p * dp

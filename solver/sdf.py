@@ -115,6 +115,41 @@ class MeshSDF:
         """(k,) signed distances of points (k, 3); see :meth:`query` for ``max_distance``."""
         return self.query(points, max_distance)[0]
 
+    def evaluate(self, points, band: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distances (k,) and their gradients (k, 3) at points (k, 3), as :class:`HalfSpace` and
+        :class:`Box` give them, so that a closed mesh can be what a hand keeps out of.
+
+        The gradient is the unit vector from the closest point to the query (outwards inside as well
+        as outside); on the surface, the closest face's normal. Points provably farther than ``band``
+        from the surface get a positive lower bound on their distance and a zero gradient *whether
+        they are inside or outside*: a penalty on penetration then acts within ``band`` of the surface
+        only, which is what keeps it cheap (a hand mostly away from the object costs one nearest-
+        neighbour query per vertex). The default band is infinite: exact signs everywhere (and
+        :meth:`query`'s bound, with ``max_distance = 0``, outside the bounding box).
+        """
+        X = _points(points)
+        signed = np.empty(len(X))
+        gradient = np.zeros_like(X)
+        near = np.arange(len(X))
+        if np.isfinite(band):
+            gap = np.linalg.norm(np.maximum(self._box[0] - X, 0) + np.maximum(X - self._box[1], 0), axis=1)
+            near = np.flatnonzero(gap <= band)
+            signed[gap > band] = gap[gap > band]
+            first, _ = self._tree.query(X[near], distance_upper_bound=band + self._spacing)
+            # No point of the surface is closer than this (with no sample in reach: than the band).
+            lower = np.where(np.isinf(first), band, first - self._spacing)
+            far = np.isinf(first) | (lower > band)
+            signed[near[far]] = lower[far]
+            near = near[~far]
+        signed[near], closest, face = self.query(X[near], max_distance=0.0)
+        exact = face >= 0
+        off = exact & (signed[near] != 0)
+        rows = near[off]
+        gradient[rows] = (X[rows] - closest[off]) / signed[rows, None]
+        on = exact & (signed[near] == 0)
+        gradient[near[on]] = self.mesh.face_normals[face[on]]
+        return signed, gradient
+
     def query(self, points, max_distance: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Signed distances (k,), closest points (k, 3) and their faces (k,) for points (k, 3).
 
@@ -159,10 +194,14 @@ class MeshSDF:
         redo = np.flatnonzero(unsure & ~bound)
         if redo.size:
             lists = self._tree.query_ball_point(Y[redo], best[redo] + self._spacing * (1 + 1e-9))
-            faces = [np.unique(self._owner[c]) for c in lists]
-            counts = np.array([len(c) for c in faces])
-            owner = np.repeat(redo, counts)
-            faces = np.concatenate(faces)
+            # Each (query, face) pair once: a face can have several samples in a query's ball.
+            found = np.fromiter((len(c) for c in lists), np.int64, len(lists))
+            pairs = np.unique(
+                np.repeat(np.arange(redo.size), found) * len(self._corners)
+                + self._owner[np.concatenate(lists).astype(np.int64)]
+            )
+            owner, faces = redo[pairs // len(self._corners)], pairs % len(self._corners)
+            counts = np.bincount(pairs // len(self._corners), minlength=redo.size)
             d, c, f = _closest_on_triangles(Y[owner], self._corners[faces])
             order = np.lexsort((d, owner))
             first = order[np.concatenate([[0], np.cumsum(counts)[:-1]])]

@@ -4,8 +4,8 @@ cancellation, and bad input."""
 import numpy as np
 import pytest
 
-from geodesics import SurfacePoints
-from solver import Box, ContactIK, HalfSpace, Markers, SolverError, Weights, hands
+from geodesics import SurfacePoints, TriMesh
+from solver import Box, ContactIK, HalfSpace, Markers, MeshSDF, SolverError, Weights, hands, objects
 from solver.ik import L2_SMOOTHING
 from solver.rotations import euler_to_matrix
 
@@ -39,7 +39,7 @@ def central_gradient(ik, theta, h=1e-6):
 
 
 ONLY = {
-    name: Weights(**{w: (value if w == key else 0.0) for w in "dnpmtk"})
+    name: Weights(**{w: (value if w == key else 0.0) for w in "dnpmtko"})
     for name, key, value in [
         ("distance", "d", 1.0),
         ("normal", "n", 1.0),
@@ -47,6 +47,7 @@ ONLY = {
         ("marker", "m", 1.0),
         ("table", "t", 1.0),
         ("keyed", "k", 10.0),
+        ("penetration", "o", 100.0),
     ]
 }
 
@@ -64,6 +65,8 @@ def test_every_term_has_the_exact_gradient(hand, term, obstacle):
             rotation=euler_to_matrix([0.1, 0.2, 0.3]),
         )
     )
+    sphere = objects.sphere(0.05)  # a ball around the hand's middle: some of its skin is inside
+    ball = TriMesh(sphere.vertices + hand.posed_vertices(truth).mean(0), sphere.faces)
     ik = ContactIK(
         hand,
         points,
@@ -73,6 +76,7 @@ def test_every_term_has_the_exact_gradient(hand, term, obstacle):
         prior=0.1 * truth,
         markers=Markers(points[::7], P[::7] + 0.01),
         obstacle=table,
+        keep_out=MeshSDF(ball),
         keyed=truth,
     )
     for trial in range(3):
@@ -273,3 +277,24 @@ def test_a_solve_that_frees_or_moves_nothing_never_claims_convergence(hand):
     at_optimum = ContactIK(hand, points, P, N, Weights(p=0.0)).solve(truth)  # already where it should be
     assert at_optimum.status == "unchanged" and np.abs(at_optimum.theta - hand.rig.clip(truth)).max() < 1e-6
     assert np.array_equal(locked, hand.rig.locked)
+
+
+def test_keep_out_rests_a_round_pad_on_the_object_instead_of_sinking_it(hand):
+    """Eq. 2 alone pulls every point of a round fingertip pad onto its closest points of a ball: the pad
+    flattens by sinking into it. With the object kept out (λo), the skin stays out of the ball (to
+    0.1 mm) at the cost of a slightly larger contact distance."""
+    rig = hand.rig
+    pad = hand.contact_patches(60, seed=1)["index_3"]
+    P, N = hand.posed_points(rig.rest, pad)
+    normal = N.mean(0) / np.linalg.norm(N.mean(0))
+    sphere = objects.sphere(0.05, subdivisions=4)
+    ball = TriMesh(sphere.vertices + P.mean(0) + 0.05 * normal, sphere.faces)  # touching the pad's middle
+    solid = MeshSDF(ball)
+    _, targets, faces = solid.query(P)
+    deepest, mean = {}, {}
+    for name, keep_out in (("eq2", None), ("kept out", solid)):
+        r = ContactIK(hand, pad, targets, ball.face_normals[faces], keep_out=keep_out).solve(rig.rest)
+        deepest[name] = -solid(hand.posed_vertices(r.theta)).min()
+        mean[name] = r.distances.mean()
+    assert deepest["eq2"] > 1e-3 > 1e-4 > deepest["kept out"]  # measured 1.9 mm and 0.02 mm
+    assert mean["eq2"] < mean["kept out"] < 2 * mean["eq2"]
