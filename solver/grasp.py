@@ -12,10 +12,23 @@ object (so a thin object is not stepped over and the *first* contact is found, n
 bisects between the last outside and the first inside sample until the skin is within ``tolerance`` of
 the surface. The returned pose is always the outside end of the bracket: no penetration.
 
-:func:`grasp` curls every finger of a :class:`~solver.hands.Hand`: the whole finger first; when a
-segment touches, the joints up to that segment stop and the segments beyond it keep curling until
-they touch too (or reach their limits). Fingers curl independently (they do not collide with each
-other). The result is a quick baseline grip and a good start pose for :class:`solver.ContactIK`.
+:func:`grasp` curls every finger of a :class:`~solver.hands.Hand`, in one of two ways (:data:`CURLS`):
+
+* ``"together"``: all of a finger's joints curl together; when a segment touches, the joints up to that
+  segment stop and the segments beyond it keep curling until they touch too (or reach their limits).
+  The fingertips close first, like a claw.
+* ``"in turn"``: one joint at a time from the knuckle out, each as the 1988 paper flexes a single joint:
+  the knuckle curls with the finger straight until the finger touches, then the first joint beyond the
+  touching segment curls, and so on, until each segment rests on the object or its joint reaches its
+  limit. Fingers wrap a mug or a handle this way instead of hooking it with their tips.
+
+Every vertex the moving joints carry is tested (exact signed distances), so nothing curls into the
+object. Fingers curl independently (they do not collide with each other). Whether a finger touches is
+measured at the end, not assumed: its skin's closest signed distance to the object. The result is a
+quick baseline grip and a good start pose for :class:`solver.ContactIK`.
+
+:func:`placement` and :func:`in_palm` put an upright object (a mug) where a procedural hand can grasp
+it: against the palm, where the fingers wrap it.
 """
 
 from __future__ import annotations
@@ -38,6 +51,11 @@ SAMPLES = 24
 RELATIVE_TOLERANCE = 5e-4
 #: Bisection stops after this many halvings even if the tolerance is not met (grazing contacts).
 MAX_HALVINGS = 40
+#: How :func:`grasp` curls a finger's joints (see the module docstring).
+CURLS = ("together", "in turn")
+#: The gap :func:`placement` leaves between the open hand's skin and the object, as a fraction of the
+#: hand's length (4 mm on the life-size human hand).
+PALM_GAP = 0.02
 
 
 @dataclass(frozen=True)
@@ -67,9 +85,24 @@ class FlexResult:
 
 @dataclass(frozen=True)
 class GraspResult:
-    """Outcome of :func:`grasp`: the pose, which fingers touch, and the time taken."""
+    """Outcome of :func:`grasp`.
+
+    Attributes
+    ----------
+    theta : (d,) ndarray
+        The grip.
+    distance : dict[str, float]
+        Per finger, the closest signed distance of its skin to the object at ``theta`` (negative: it
+        was inside the object already at the start, which curling cannot undo).
+    touching : dict[str, bool]
+        Per finger, whether its skin rests on the object: ``0 <= distance <= tolerance``.
+    seconds : float
+    evaluations : int
+        Signed-distance evaluations.
+    """
 
     theta: np.ndarray
+    distance: dict[str, float]
     touching: dict[str, bool]
     seconds: float
     evaluations: int
@@ -195,6 +228,7 @@ def grasp(
     tolerance: float | None = None,
     samples: int = SAMPLES,
     direction: int = 1,
+    curl: str = "together",
 ) -> GraspResult:
     """Curl every finger until its first contact with the object (then its outer segments on).
 
@@ -214,14 +248,18 @@ def grasp(
     direction : int
         +1 curls each bone's x rotation towards its upper limit (the procedural hands), -1 towards its
         lower limit.
+    curl : str
+        ``"together"`` or ``"in turn"`` (:data:`CURLS`, see the module docstring).
 
     Returns
     -------
     GraspResult
-        ``touching[name]`` tells whether each finger ended on the object.
+        ``touching[name]`` tells whether each finger ended on the object, measured.
     """
     if not isinstance(hand, Hand):
         raise SolverError("grasp needs a solver.hands.Hand (it curls the hand's finger chains)")
+    if curl not in CURLS:
+        raise SolverError(f"curl must be one of {', '.join(map(repr, CURLS))}, got {curl!r}")
     start = time.perf_counter()
     rig = hand.rig
     limit = _curl_limit(rig, direction)
@@ -230,15 +268,17 @@ def grasp(
     tol = RELATIVE_TOLERANCE * hand.size if tolerance is None else float(tolerance)
     names = list(hand.chains) if chains is None else list(chains)
     owner = rig.deform_owner[np.asarray(hand.weights.argmax(axis=1)).ravel()]  # each vertex's posed bone
-    touching, evaluations = {}, 0
+    unknown = [name for name in names if name not in hand.chains]
+    if unknown:
+        fingers = ", ".join(hand.chains)
+        raise SolverError(f"the {hand.kind} hand has no finger {unknown[0]!r}; it has {fingers}")
+    evaluations = 0
     for name in names:
-        if name not in hand.chains:
-            raise SolverError(f"the {hand.kind} hand has no finger {name!r}; it has {', '.join(hand.chains)}")
         bones = list(hand.chains[name])
-        touching[name] = False
         while bones:
-            dofs = np.array([rig.rotation_dof(b, 0) for b in bones])
-            vertices = np.flatnonzero(np.isin(owner, bones))
+            moving = bones[:1] if curl == "in turn" else bones
+            dofs = np.array([rig.rotation_dof(b, 0) for b in moving])
+            vertices = np.flatnonzero(np.isin(owner, bones))  # the skin the moving joints carry
             skin = hand.vertex_skin(vertices)
 
             def distance_at(s, dofs=dofs, skin=skin, theta=theta):
@@ -250,10 +290,61 @@ def grasp(
             evaluations += count
             theta = _curled(theta, dofs, limit, np.array([s]))[0]
             if not reached:
+                if curl == "in turn":  # this joint at its limit: the next one goes on
+                    bones = bones[1:]
+                    continue
                 break
-            touching[name] = True
-            # The segment that touches: stop the joints up to it, keep curling the ones beyond.
+            # The segment that touches: stop the joints up to it, keep curling the ones beyond. Curling
+            # together, a finger inside the object at the start (s = 0) stays as it is.
             d = sdf(skin.positions(rig.kinematics(theta, derivatives=False)), tol)
             contact = owner[vertices[int(np.argmin(d))]]
-            bones = bones[bones.index(contact) + 1 :] if s > 0 else []
-    return GraspResult(theta, touching, time.perf_counter() - start, evaluations)
+            bones = bones[bones.index(contact) + 1 :] if s > 0 or curl == "in turn" else []
+    X = hand.posed_vertices(theta)
+    distance = {}
+    for name in names:
+        distance[name] = float(np.min(sdf(X[np.isin(owner, hand.chains[name])], np.inf)))
+    touching = {name: bool(0.0 <= d <= tol) for name, d in distance.items()}
+    return GraspResult(theta, distance, touching, time.perf_counter() - start, evaluations)
+
+
+def palm_centre(hand: Hand) -> np.ndarray:
+    """(3,) the centre of the palm's skin (rest pose, the hand's own space)."""
+    palm = hand.palmar_faces(hand.rig.bone_index("hand"))
+    return hand.mesh.vertices[np.unique(hand.mesh.faces[palm])].mean(axis=0)
+
+
+def placement(hand: Hand, obj: TriMesh, gap: float | None = None) -> np.ndarray:
+    """(4, 4) the hand's space to the object's, for grasping an upright, closed object from its side.
+
+    The object stands on z = 0 around the z axis, as :func:`solver.objects.mug` does (its handle on
+    +x). The hand, at rest, points its fingers along -y around the object and its thumb up; its palm
+    faces the object from -x, the palm's centre at half the object's height, moved in until its skin is
+    ``gap`` (default :data:`PALM_GAP` of the hand's length) from the object.
+    """
+    gap = PALM_GAP * hand.length if gap is None else float(gap)
+    sdf = MeshSDF(obj)
+    rotation = np.array([[0.0, 0.0, -1.0], [0.0, -1.0, 0.0], [-1.0, 0.0, 0.0]])  # x->-z, y->-y, z->-x
+    skin = hand.posed_vertices(hand.rig.rest) @ rotation.T
+    V = obj.vertices
+    side = np.array([V[:, 0].min(), 0.0, 0.5 * (V[:, 2].min() + V[:, 2].max())])
+    centre = side - rotation @ palm_centre(hand)  # the palm's centre on the object's side
+
+    def clearance(back: float) -> float:  # exact below the gap (all that is compared), a bound above
+        return float(sdf(skin + centre - [back, 0.0, 0.0], max(gap, 0.0)).min())
+
+    near, far = 0.0, hand.length  # the skin's clearance grows as the hand backs away along -x
+    while clearance(near) > gap:
+        near, far = near - hand.length, near
+    while far - near > 1e-9 * hand.length:
+        mid = 0.5 * (near + far)
+        near, far = (mid, far) if clearance(mid) < gap else (near, mid)
+    M = np.eye(4)
+    M[:3, :3] = rotation
+    M[:3, 3] = centre - [far, 0.0, 0.0]
+    return M
+
+
+def in_palm(hand: Hand, obj: TriMesh, gap: float | None = None) -> TriMesh:
+    """The upright object moved into the hand's space by :func:`placement`, ready to be grasped there."""
+    M = np.linalg.inv(placement(hand, obj, gap))
+    return TriMesh(obj.vertices @ M[:3, :3].T + M[:3, 3], obj.faces)

@@ -6,6 +6,7 @@ import pytest
 from geodesics import SurfacePoints, TriMesh
 from solver import ContactIK, MeshSDF, SolverError, flex_to_contact, grasp, hands, objects
 from solver.benchmark import cylinder_grasp
+from solver.grasp import RELATIVE_TOLERANCE, in_palm
 from solver.sdf import HalfSpace, _closest_on_triangles
 
 
@@ -148,5 +149,30 @@ def test_grasp_and_flex_refuse_bad_input(hand):
         flex_to_contact(hand, hand.rig.rest, [9], SurfacePoints.from_vertices(hand.mesh, [0, 1]), obj)
     with pytest.raises(SolverError, match=r"direction must be \+1"):
         grasp(hand, obj, direction=0)
+    with pytest.raises(SolverError, match="curl must be one of 'together', 'in turn'"):
+        grasp(hand, obj, curl="claw")
     with pytest.raises(SolverError, match="closed TriMesh or a signed-distance callable"):
         flex_to_contact(hand, hand.rig.rest, [9], SurfacePoints.from_vertices(hand.mesh, [0]), "sphere")
+
+
+def test_a_mug_in_the_palm_is_wrapped_joint_by_joint_and_touches_are_measured():
+    """in_palm stands the mug its gap from the open hand's skin; curling the joints in turn wraps every
+    finger on it without entering it, each finger's touch measured from its distance; curling them
+    together from a hand already inside the mug leaves that finger as it is and says so."""
+    hand = hands.make_hand("human")
+    mug = in_palm(hand, objects.mug(), gap=0.003)
+    solid = MeshSDF(mug)
+    assert solid(hand.posed_vertices(hand.rig.rest)).min() == pytest.approx(0.003, abs=1e-9)
+    tol = RELATIVE_TOLERANCE * hand.size
+    wrapped = grasp(hand, mug, curl="in turn")
+    assert all(wrapped.touching.values()) and all(0 <= d <= tol for d in wrapped.distance.values())
+    assert solid(hand.posed_vertices(wrapped.theta)).min() >= 0
+    # The wrap curls the knuckles first: they end more curled than when every joint curls at once.
+    together = grasp(hand, mug)
+    knuckles = [hand.rig.rotation_dof(bones[0], 0) for name, bones in hand.chains.items() if name != "thumb"]
+    assert np.all(wrapped.theta[knuckles] > together.theta[knuckles])
+    # Pushed 1 mm into the mug, the hand starts inside it: no finger is claimed to touch.
+    inside = in_palm(hand, objects.mug(), gap=-0.001)
+    pressed = grasp(hand, inside)
+    assert min(pressed.distance.values()) < 0 and not all(pressed.touching.values())
+    assert all(pressed.touching[n] == (0 <= d <= tol) for n, d in pressed.distance.items())

@@ -64,7 +64,7 @@ from geodesics import SurfacePoints, TriMesh
 
 from .. import objects as procedural
 from ..errors import SolverError
-from ..grasp import RELATIVE_TOLERANCE, SAMPLES, _curl_search, _curled
+from ..grasp import grasp
 from ..hands import Hand, make_hand
 from ..rig import Rig
 from ..rotations import axis_angle_to_matrix, matrix_to_axis_angle, matrix_to_euler
@@ -419,40 +419,8 @@ def _grasp(scene: _Scene, spec: Grasp, root: _Root) -> tuple[np.ndarray, np.ndar
             d = np.minimum(d, (X - plane[1]) @ plane[0] - PALM_GAP * scene.scale)
         return d
 
-    theta = _wrap(hand, obstacles, theta0)
+    theta = grasp(hand, obstacles, theta0, curl="in turn").theta  # fingers wrap the object
     return root.transform(theta), theta
-
-
-def _wrap(hand: Hand, obstacles, theta: np.ndarray) -> np.ndarray:
-    """Close every finger on the obstacles by flex-to-contact, one joint at a time from the knuckle out:
-    the knuckle curls (the finger straight) until the finger touches, then the joints beyond the
-    touching segment go on curling in turn, until each segment rests on the object or its joint
-    reaches its limit. Every vertex the moving joints carry is tested (exact signed distances), so
-    nothing ends inside. Fingers wrap a handle this way instead of hooking it with their tips."""
-    rig = hand.rig
-    tol = RELATIVE_TOLERANCE * hand.size
-    owner = np.asarray(hand.weights.argmax(axis=1)).ravel()
-    theta = rig.clip(theta)
-    for bones in hand.chains.values():
-        bones = list(bones)
-        while bones:
-            dofs = np.array([rig.rotation_dof(bones[0], 0)])
-            vertices = np.flatnonzero(np.isin(owner, bones))
-            skin = hand.vertex_skin(vertices)
-
-            def distance_at(s, dofs=dofs, skin=skin, theta=theta):
-                poses = _curled(theta, dofs, rig.upper, s)
-                X = np.concatenate([skin.positions(rig.kinematics(p, derivatives=False)) for p in poses])
-                return obstacles(X).reshape(len(s), -1).min(1)
-
-            s, _, reached, _ = _curl_search(distance_at, SAMPLES, tol)
-            theta = _curled(theta, dofs, rig.upper, np.array([s]))[0]
-            if not reached:
-                bones = bones[1:]
-                continue
-            d = obstacles(skin.positions(rig.kinematics(theta, derivatives=False)))
-            bones = bones[bones.index(owner[vertices[int(np.argmin(d))]]) + 1 :]
-    return theta
 
 
 # ------------------------------------------------------------------------------------------- the path
