@@ -14,6 +14,7 @@ from mathutils import Matrix, Vector
 
 from geodesics import TriMesh
 from solver import hands, objects
+from solver.grasp import placement
 from solver.hands import Hand
 
 #: What the Add menu offers: name -> (label, builder of a TriMesh in metres).
@@ -150,26 +151,8 @@ class CONTACT_EDIT_OT_add_object(bpy.types.Operator):
         return {"FINISHED"}
 
 
-def hand_placement(hand: Hand, mug_radius: float, mug_height: float, gap: float) -> np.ndarray:
-    """(4, 4) the hand armature's world matrix for grasping an upright mug standing at the origin (handle
-    on +x): fingers along -y around the mug, palm facing it from -x, thumb up, the palm's centre ``gap``
-    off the mug's wall at mid height."""
-    rotation = np.array([[0.0, 0.0, -1.0], [0.0, -1.0, 0.0], [-1.0, 0.0, 0.0]])  # x->-z, y->-y, z->-x
-    wanted = np.array([-(mug_radius + gap), 0.0, 0.5 * mug_height])
-    M = np.eye(4)
-    M[:3, :3] = rotation
-    M[:3, 3] = wanted - rotation @ palm_centre(hand)
-    return M
-
-
-def palm_centre(hand: Hand) -> np.ndarray:
-    """The centre of the palm's skin (rest pose, the hand's own space)."""
-    palm = hand.palmar_faces(hand.rig.bone_index("hand"))
-    return hand.mesh.vertices[np.unique(hand.mesh.faces[palm])].mean(axis=0)
-
-
-#: The example's mug (metres) and the gap between the palm and its wall.
-MUG_RADIUS, MUG_HEIGHT, PALM_GAP = 0.04, 0.095, 0.004
+#: The example's mug (metres), and how far the open hand's skin is from its wall.
+MUG_RADIUS, MUG_HEIGHT, PALM_GAP = 0.04, 0.095, 0.0005
 
 
 def example_scene(context, where) -> tuple[Hand, bpy.types.Object, bpy.types.Object]:
@@ -177,10 +160,11 @@ def example_scene(context, where) -> tuple[Hand, bpy.types.Object, bpy.types.Obj
     the scene's hand and object. Returns the procedural hand, its mesh object and the mug."""
     hand = hands.make_hand("human")
     hand_obj, armature = hand_objects(hand, "Hand", context.collection)
-    mug = mesh_object("Mug", objects.mug(radius=MUG_RADIUS, height=MUG_HEIGHT), context.collection)
+    mug_mesh = objects.mug(radius=MUG_RADIUS, height=MUG_HEIGHT)
+    mug = mesh_object("Mug", mug_mesh, context.collection)
     offset = np.eye(4)
     offset[:3, 3] = where
-    armature.matrix_world = Matrix(offset @ hand_placement(hand, MUG_RADIUS, MUG_HEIGHT, PALM_GAP))
+    armature.matrix_world = Matrix(offset @ placement(hand, mug_mesh, PALM_GAP))
     mug.location = where
     context.scene.contact_edit.hand, context.scene.contact_edit.target = hand_obj, mug
     return hand, hand_obj, mug

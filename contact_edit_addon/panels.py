@@ -137,9 +137,9 @@ class VIEW3D_PT_contact_edit_pose(SubPanel, bpy.types.Panel):
             solve = row.operator("contact_edit.solve", text=label.split()[0])
             solve.stage, solve.keyframe = stage, settings.keyframe
         row = layout.row(align=True)
-        row.operator(
-            "contact_edit.flex_to_contact", text="Flex", icon="VIEW_PAN"
-        ).keyframe = settings.keyframe
+        for joints, label in (("TOGETHER", "Flex"), ("IN_TURN", "Wrap")):
+            flex = row.operator("contact_edit.flex_to_contact", text=label, icon="VIEW_PAN")
+            flex.joints, flex.keyframe = joints, settings.keyframe
         row.operator(
             "contact_edit.mirror_pose", text="Mirror", icon="MOD_MIRROR"
         ).keyframe = settings.keyframe
@@ -159,6 +159,7 @@ class VIEW3D_PT_contact_edit_pose(SubPanel, bpy.types.Panel):
             column.prop(settings, "weight_distance", text="Distance")
             column.prop(settings, "weight_normal", text="Normals")
             column.prop(settings, "weight_prior", text="Rest pose")
+            column.prop(settings, "weight_penetration", text="Keep out")
 
 
 class VIEW3D_PT_contact_edit_rig(SubPanel, bpy.types.Panel):

@@ -14,7 +14,7 @@ import bpy
 import numpy as np
 
 from geodesics import ContactError, SurfacePoints, TriMesh
-from solver import ContactIK, SolverError, SolveResult, Weights, grasp
+from solver import ContactIK, GraspResult, MeshSDF, SolverError, SolveResult, Weights, grasp
 from solver.hands import Hand
 
 from . import bridge, store
@@ -32,8 +32,9 @@ STAGES = (
 class Problem:
     """One contact IK solve set up from the scene.
 
-    ``pairs`` lists the (hand patch, object patch) names whose points were paired; ``free`` the DOFs
-    the stage lets change; ``world_scale`` converts armature-space lengths into scene units.
+    ``pairs`` lists the (hand patch, object patch) names whose points were paired, ``sizes`` how many
+    contacts each pair has (in the order of ``ik``'s points); ``free`` the DOFs the stage lets change;
+    ``world_scale`` converts armature-space lengths into scene units; ``target`` names the object.
     """
 
     posed: bridge.PosedHand
@@ -41,7 +42,9 @@ class Problem:
     theta0: np.ndarray
     free: np.ndarray
     pairs: tuple[tuple[str, str], ...]
+    sizes: tuple[int, ...]
     world_scale: float
+    target: str
 
     def apply(self, theta, frame: int | None = None) -> None:
         bridge.apply_pose(self.posed, theta, frame)
@@ -80,6 +83,20 @@ def object_in_armature(target: bpy.types.Object, posed: bridge.PosedHand) -> np.
     return np.linalg.inv(np.array(armature.matrix_world)) @ np.array(target.matrix_world)
 
 
+def transformed(mesh: TriMesh, M: np.ndarray) -> TriMesh:
+    """``mesh`` moved by the (4, 4) matrix M (the object's mesh into armature space)."""
+    return TriMesh(mesh.vertices @ M[:3, :3].T + M[:3, 3], mesh.faces)
+
+
+def object_solid(mesh: TriMesh, to_armature: np.ndarray) -> MeshSDF | None:
+    """The object's signed distance in armature space, for keeping the hand out of it. None for an open
+    mesh (a plane, a scan with holes), which has no inside, and for an inside-out one (a mould, a room:
+    its faces point in), whose "inside" is all the space around it, where the hand starts."""
+    if np.any(mesh.twin < 0) or mesh.signed_volume <= 0:
+        return None
+    return MeshSDF(transformed(mesh, to_armature))
+
+
 def problem(scene: bpy.types.Scene, stage: str = "ALL") -> Problem:
     """Set up the contact IK of the scene's hand and object from their stored, paired contacts.
 
@@ -95,8 +112,12 @@ def problem(scene: bpy.types.Scene, stage: str = "ALL") -> Problem:
     M = object_in_armature(target, posed)
     positions = object_points.positions(object_set.mesh) @ M[:3, :3].T + M[:3, 3]
     normals = object_set.mesh.face_normals[object_points.faces] @ np.linalg.inv(M[:3, :3])
-    weights = Weights(d=settings.weight_distance, n=settings.weight_normal, p=settings.weight_prior)
-    ik = ContactIK(posed.skin, hand_points, positions, normals, weights)
+    weights = Weights(
+        d=settings.weight_distance, n=settings.weight_normal, p=settings.weight_prior,
+        o=settings.weight_penetration,
+    )  # fmt: skip
+    keep_out = object_solid(object_set.mesh, M) if settings.weight_penetration > 0 else None
+    ik = ContactIK(posed.skin, hand_points, positions, normals, weights, keep_out=keep_out)
     armature = posed.armature_object()
     return Problem(
         posed=posed,
@@ -104,7 +125,9 @@ def problem(scene: bpy.types.Scene, stage: str = "ALL") -> Problem:
         theta0=posed.start,
         free=free_dofs(posed, armature, stage),
         pairs=tuple(pairs),
+        sizes=tuple(len(hand_set[h]) for h, _ in pairs),
         world_scale=bridge.uniform_scale(armature),
+        target=target.name,
     )
 
 
@@ -170,16 +193,72 @@ def length_text(scene: bpy.types.Scene, value: float) -> str:
     return bpy.utils.units.to_string(units.system, "LENGTH", value * units.scale_length, precision=3)
 
 
+#: A hand patch touches when one of its contacts is this close to its target on the object's surface, in
+#: units u of the hand's size (:attr:`solver.ContactIK.unit`; 1 mm on a life-size hand).
+TOUCH_DISTANCE = 0.1
+
+
+@dataclass(frozen=True)
+class Touch:
+    """How a solved pose meets the object, measured, never assumed.
+
+    ``gaps`` holds each paired hand patch's closest contact distance to its target (scene units),
+    ``touching`` the patches whose gap is within ``tolerance``; ``deepest`` is how far the deepest
+    vertex of the hand's skin is inside the object (0 when none is; None for an open object, which
+    has no inside).
+    """
+
+    gaps: dict[str, float]
+    touching: tuple[str, ...]
+    tolerance: float
+    deepest: float | None
+
+
+def touch(problem: Problem, theta) -> Touch:
+    """Which paired hand patches the pose θ (d,) brings onto the object, and how deep it is inside."""
+    scale = problem.world_scale
+    ends = np.cumsum(problem.sizes)
+    distances = problem.ik.distances(theta)
+    gaps = {
+        h: float(distances[end - size : end].min()) * scale
+        for (h, _), size, end in zip(problem.pairs, problem.sizes, ends, strict=True)
+    }
+    tolerance = TOUCH_DISTANCE * problem.ik.unit * scale
+    deepest = None
+    if problem.ik.keep_out is not None:
+        inside = problem.ik.keep_out(problem.ik.hand.posed_vertices(theta))
+        deepest = max(0.0, -float(inside.min())) * scale
+    return Touch(gaps, tuple(h for h, gap in gaps.items() if gap <= tolerance), tolerance, deepest)
+
+
 def summary(scene: bpy.types.Scene, problem: Problem, result: SolveResult, outcome: str | None = None) -> str:
     """How the solve went, in clauses separated by '; ' (the panel puts one per line): contacts, how
-    close they got, evaluations, time and outcome."""
+    close they got, which patches touch and how deep the hand is in the object (:func:`touch`),
+    evaluations, time and outcome."""
     mean = float(result.distances.mean()) * problem.world_scale
     worst = float(result.distances.max()) * problem.world_scale
-    return (
-        f"{len(result.distances)} contacts in {len(problem.pairs)} patch pairs; "
-        f"mean distance {length_text(scene, mean)}, largest {length_text(scene, worst)}; "
+    met = touch(problem, result.theta)
+    off = [f"{h} {length_text(scene, gap)} off" for h, gap in met.gaps.items() if h not in met.touching]
+    touching = (
+        f"all {len(met.gaps)} patches touch '{problem.target}'"
+        if not off
+        else f"{len(met.touching)} of {len(met.gaps)} patches touch '{problem.target}' ({', '.join(off)})"
+    )
+    clauses = [
+        f"{len(result.distances)} contacts in {len(problem.pairs)} patch pairs",
+        f"mean distance {length_text(scene, mean)}, largest {length_text(scene, worst)}",
+        touching,
+    ]
+    if met.deepest is not None:
+        clauses.append(
+            f"deepest point {length_text(scene, met.deepest)} inside '{problem.target}'"
+            if met.deepest > 0
+            else f"no skin inside '{problem.target}'"
+        )
+    clauses.append(
         f"{result.iterations} evaluations in {result.seconds:.2f} s, {OUTCOMES[outcome or result.status]}"
     )
+    return "; ".join(clauses)
 
 
 @dataclass(frozen=True)
@@ -247,12 +326,16 @@ def describe_plan(plan) -> RigReport:
     return RigReport(plan.ok, tuple(lines))
 
 
-def flex(scene: bpy.types.Scene, direction: int = 1) -> tuple[bridge.PosedHand, np.ndarray, dict[str, bool]]:
+def flex(
+    scene: bpy.types.Scene, direction: int = 1, curl: str = "together"
+) -> tuple[bridge.PosedHand, GraspResult]:
     """Curl each chain of selected bones until it touches the object (flex-to-contact, 1988).
 
     A chain is a selected bone and its selected descendants, each curling about its x axis towards
-    the limit on the ``direction`` side (+1: positive angles). The object must be closed.
-    Returns the posed hand, the pose, and for each chain (named by its first bone) whether it touches.
+    the limit on the ``direction`` side (+1: positive angles), its joints ``"together"`` or ``"in
+    turn"`` from the first (see :func:`solver.grasp`). The object must be closed. Returns the posed hand
+    and the grasp: its pose, and for each chain (named by its first bone) how far it is from the
+    object and whether it touches.
     """
     hand, target = _objects(scene)
     settings = scene.contact_edit
@@ -268,16 +351,13 @@ def flex(scene: bpy.types.Scene, direction: int = 1) -> tuple[bridge.PosedHand, 
             f"hand root, such as {', '.join(rig.names[1:4]) or 'none'})"
         )
     chains = _chains(rig.parents, selected)
-    object_mesh = bridge.trimesh(target)
-    M = object_in_armature(target, posed)
-    inside = TriMesh(object_mesh.vertices @ M[:3, :3].T + M[:3, 3], object_mesh.faces)
+    inside = transformed(bridge.trimesh(target), object_in_armature(target, posed))
     skin = posed.skin
     manipulator = Hand(
         skin.mesh, rig, skin.weights, kind=f"'{hand.name}'", length=skin.size,
         chains={rig.names[c[0]]: c for c in chains},
     )  # fmt: skip
-    result = grasp(manipulator, inside, posed.start, direction=direction)
-    return posed, result.theta, result.touching
+    return posed, grasp(manipulator, inside, posed.start, direction=direction, curl=curl)
 
 
 def _chains(parents: np.ndarray, selected: list[int]) -> list[tuple[int, ...]]:

@@ -2,7 +2,9 @@
 
 import bpy
 
-WEIGHTS = ("weight_distance", "weight_normal", "weight_prior")
+from solver.ik import KEEP_OUT_WEIGHT
+
+WEIGHTS = ("weight_distance", "weight_normal", "weight_prior", "weight_penetration")
 
 
 class CONTACT_EDIT_AP_preferences(bpy.types.AddonPreferences):
@@ -26,6 +28,15 @@ class CONTACT_EDIT_AP_preferences(bpy.types.AddonPreferences):
         default=10.0,
         min=0.0,
     )
+    weight_penetration: bpy.props.FloatProperty(
+        name="Keep out weight",
+        description=(
+            f"λo: how strongly the hand's skin is kept out of a closed object (not in the paper's Eq. 2; "
+            f"default {KEEP_OUT_WEIGHT:g}, 0 leaves it out)"
+        ),
+        default=KEEP_OUT_WEIGHT,
+        min=0.0,
+    )
 
     def draw(self, context):
         column = self.layout.column()
@@ -33,6 +44,7 @@ class CONTACT_EDIT_AP_preferences(bpy.types.AddonPreferences):
         column.prop(self, "weight_distance")
         column.prop(self, "weight_normal")
         column.prop(self, "weight_prior")
+        column.prop(self, "weight_penetration")
 
 
 def solver_weights(context) -> dict[str, float]:

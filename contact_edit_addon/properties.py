@@ -9,6 +9,8 @@ in ID properties makes it survive save and reload and follow undo.
 
 import bpy
 
+from solver.ik import KEEP_OUT_WEIGHT
+
 
 class CONTACT_EDIT_PG_patch(bpy.types.PropertyGroup):
     """One contact patch as the patch list shows it (the contact set is the source of truth)."""
@@ -95,6 +97,12 @@ class CONTACT_EDIT_PG_scene(bpy.types.PropertyGroup):
     weight_distance: bpy.props.FloatProperty(name="Distance (λd)", default=1.0, min=0.0)
     weight_normal: bpy.props.FloatProperty(name="Normals (λn)", default=1.0, min=0.0)
     weight_prior: bpy.props.FloatProperty(name="Rest pose (λp)", default=10.0, min=0.0)
+    weight_penetration: bpy.props.FloatProperty(
+        name="Keep out (λo)",
+        default=KEEP_OUT_WEIGHT,
+        min=0.0,
+        description="How strongly the hand's skin is kept out of a closed object (0: not at all)",
+    )
     keyframe: bpy.props.BoolProperty(
         name="Keyframe", description="Key the solved pose on the current frame", default=False
     )

@@ -158,6 +158,14 @@ class CONTACT_EDIT_OT_flex_to_contact(HotkeyTool, bpy.types.Operator):
         ],
         default="POSITIVE",
     )
+    joints: bpy.props.EnumProperty(
+        name="Joints",
+        items=[
+            ("TOGETHER", "Together", "Curl a chain's joints together: the fingertips close first"),
+            ("IN_TURN", "In turn", "Curl one joint at a time from the first: the fingers wrap the object"),
+        ],
+        default="TOGETHER",
+    )
     keyframe: bpy.props.BoolProperty(name="Keyframe", description="Key the pose on the current frame")
 
     why_not = staticmethod(need_hand_and_object)
@@ -167,14 +175,23 @@ class CONTACT_EDIT_OT_flex_to_contact(HotkeyTool, bpy.types.Operator):
 
     def _flex(self, context):
         sign = 1 if self.direction == "POSITIVE" else -1
-        posed, theta, touching = posing.flex(context.scene, sign)
-        bridge.apply_pose(posed, theta, context.scene.frame_current if self.keyframe else None)
-        reached = [name for name, hit in touching.items() if hit]
-        missed = [name for name, hit in touching.items() if not hit]
-        message = f"{len(reached)} of {len(touching)} chains touch '{context.scene.contact_edit.target.name}'"
+        curl = "in turn" if self.joints == "IN_TURN" else "together"
+        posed, result = posing.flex(context.scene, sign, curl)
+        bridge.apply_pose(posed, result.theta, context.scene.frame_current if self.keyframe else None)
+        scene, target = context.scene, context.scene.contact_edit.target.name
+        scale = bridge.uniform_scale(posed.armature_object())
+        reached = [name for name, hit in result.touching.items() if hit]
+        inside = {name: d for name, d in result.distance.items() if d < 0}
+        missed = [name for name in result.touching if name not in reached and name not in inside]
+        message = f"{len(reached)} of {len(result.touching)} chains touch '{target}'"
+        if inside:
+            depths = ", ".join(
+                f"{name} ({posing.length_text(scene, -d * scale)} deep)" for name, d in inside.items()
+            )
+            message += f"; inside it already before curling: {depths}"
         if missed:
             message += f"; curled fully without touching: {', '.join(missed)}"
-        self.report({"INFO"} if reached else {"WARNING"}, message)
+        self.report({"INFO"} if reached and not inside else {"WARNING"}, message)
         return {"FINISHED"}
 
 
