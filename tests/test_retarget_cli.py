@@ -158,3 +158,4 @@ def test_baselines_reuse_our_solves_and_write_table_1(retargeted, capsys):
         assert table[method]["contact_frames"] == np.isfinite(contact).sum()
     text = (out / "table1.txt").read_text()
     assert [line.split()[0] for line in text.splitlines()[3:6]] == ["Keypoint", "Keyvector", "Ours"]
+    assert "Refinement (§3.4.3) was skipped" in text and "Splines of 8 control points" in text

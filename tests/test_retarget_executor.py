@@ -2,6 +2,7 @@
 run that stops part-way resumes without solving any frame twice."""
 
 import os
+import signal
 
 import numpy as np
 import pytest
@@ -15,6 +16,16 @@ RUN = {"motion": "abc", "target": "human"}
 def square_plus_offset(shared, task):
     """A stand-in for a frame solve: module level, so worker processes can import it."""
     return {"theta": np.asarray(task) ** 2 + shared["offset"], "pid": np.int64(os.getpid())}
+
+
+def ctrl_c_handler(shared, task):
+    """What a worker does on Ctrl-C (SIGINT): its handler, as a number."""
+    return {"ignored": np.int64(signal.getsignal(signal.SIGINT) == signal.SIG_IGN)}
+
+
+def die(shared, task):
+    """A worker that ends without answering, as one re-running a script's unguarded main code does."""
+    os._exit(3)
 
 
 def tasks(n=12):
@@ -98,3 +109,16 @@ def test_dask_cluster_gets_the_same_tasks(tmp_path):
         run_frames(
             square_plus_offset, {}, {99: 1.0}, FrameStore(tmp_path / "x", RUN), scheduler="tcp://127.0.0.1:9"
         )
+
+
+def test_workers_leave_ctrl_c_to_the_process_that_started_them(tmp_path):
+    """A terminal's Ctrl-C reaches every process of its group: workers ignore it (they would die
+    mid-frame, each with a traceback), the caller gets KeyboardInterrupt and stops handing out frames."""
+    results = run_frames(ctrl_c_handler, None, tasks(4), FrameStore(tmp_path, RUN), workers=2)
+    assert all(int(r["ignored"]) == 1 for r in results.values())
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # this process is untouched
+
+
+def test_a_worker_that_dies_is_a_clear_error_naming_the_main_guard(tmp_path):
+    with pytest.raises(SolverError, match='if __name__ == "__main__"'):
+        run_frames(die, None, tasks(2), FrameStore(tmp_path, RUN), workers=2)

@@ -9,6 +9,7 @@ stays within its budget; the bars are the issue's (median contact distance durin
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import numpy as np
 import pytest
@@ -196,6 +197,7 @@ def _hand_figures(r, kind, scale):
     return contact, length
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("kind", "scale"), list(HANDS))
 def test_other_hands_contact_distance(targets, kind, scale):
     bound, meets = HANDS[kind, scale]
@@ -206,6 +208,7 @@ def test_other_hands_contact_distance(targets, kind, scale):
         assert contact <= bound * 1e-3  # regression bound on the measured figure
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("kind", "scale"), [k for k, (_, meets) in HANDS.items() if not meets])
 @pytest.mark.xfail(
     strict=True,
@@ -218,6 +221,7 @@ def test_other_hands_meet_the_bar(targets, kind, scale):
     assert contact <= BAR * length
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("kind", "scale"), list(HANDS))
 def test_other_hands_against_the_contacts_only_floor(targets, kind, scale):
     """The per-frame estimate against the best any pose can do with the transferred contacts: every frame
@@ -248,6 +252,7 @@ def test_other_hands_against_the_contacts_only_floor(targets, kind, scale):
 # -------------------------------------------------------------------------------------- cyclic (§4.5)
 
 
+@pytest.mark.slow
 def test_cyclic_human_witch_human(source, targets):
     witch = targets("witch", 1.0)
     K = len(source.hand_contacts)
@@ -296,6 +301,7 @@ def _ablation(targets, kind, scale) -> tuple[float, float]:
     return ablated, default
 
 
+@pytest.mark.slow
 def test_ablation_without_contacts(targets):
     """§4.7 ablates the contacts on its alternate human hand; ours is the human hand at 1.25x (on the
     source's own hand the 1:1 area markers alone nearly reproduce it: measured 1.16 mm without contacts
@@ -307,6 +313,7 @@ def test_ablation_without_contacts(targets):
     assert alien_ablated / alien_default > ablated / default  # measured x6.6
 
 
+@pytest.mark.slow
 def test_ablation_without_root_pass(source, same_hand):
     ann = an.default_annotation(make_hand("human"), make_hand("human"))
     options = RetargetOptions(root_pass=False, refine=False, intersections=False)
@@ -376,6 +383,7 @@ def bimanual():
     return r_right, r_left, left, cr, cl, bar, depth
 
 
+@pytest.mark.slow
 def test_bimanual_hands_superpose_without_meeting(bimanual):
     r_right, r_left, left, cr, cl, _, depth = bimanual
     assert r_left.theta.shape == left.source_theta.shape
@@ -384,6 +392,7 @@ def test_bimanual_hands_superpose_without_meeting(bimanual):
     assert depth.max() < 0.001  # the source hands come within 1.01 mm of each other
 
 
+@pytest.mark.slow
 def test_bimanual_hands_meet_their_contacts_alike(bimanual):
     _, _, _, cr, cl, bar, _ = bimanual
     assert cr <= bar and cl <= bar
@@ -419,3 +428,34 @@ def test_resume_and_foreign_folder(source, same_hand, same_hand_folder):
     other = dataclasses.replace(NO_METRICS, weights=RetargetWeights(j=20.0))
     with pytest.raises(SolverError, match="another run"):
         retarget(source, HandSpec("human", 1.0), ann, other, folder=same_hand_folder, workers=WORKERS)
+
+
+# ------------------------------------------------------------------------------------ short, fast motions
+
+
+@pytest.mark.slow
+def test_a_whole_manipulation_in_60_frames_ends_soon_and_never_silently_misses():
+    """The issue's 0.5 s grasp-and-lift (60 frames at 120 fps) onto the witch: six control points (the
+    paper's 10 per second) put the contacts 80 mm off where the frames reached 7 mm, and refinement ran
+    its 20 rounds for nothing. Now rounds that stop helping end it, the spline gets the control points
+    it needs, and what still misses says why."""
+    from solver.retarget.refine import PATIENCE
+
+    motion = synthetic.generate("mug", frames=60, seed=0)
+    ann = an.default_annotation(make_hand("human"), make_hand("witch"))
+    steps = []
+    r = retarget(
+        motion, HandSpec("witch"), ann, NO_METRICS, workers=WORKERS,
+        progress=lambda stage, done, total: steps.append((stage, done, total)),
+    )  # fmt: skip
+    log, summary = r.refine_log, r.summary()
+    print(summary["refinement"], summary["spline_control_points"], summary["warnings"])
+    assert log.converged or log.stalled
+    assert log.iterations <= 2 * PATIENCE < 20
+    final, estimate = summary["median_contact_distance_mm"], summary["median_estimate_contact_distance_mm"]
+    assert final <= 1.5 * estimate or summary["warnings"]
+    assert summary["spline_control_points"] > summary["spline_default_control_points"] == 6
+    # One bar over the whole refinement: its count never goes back, and it ends full.
+    refine = [(done, total) for stage, done, total in steps if stage == "refine"]
+    assert all(b[0] >= a[0] for a, b in itertools.pairwise(refine))
+    assert refine[-1][0] == refine[-1][1] == log.resolves

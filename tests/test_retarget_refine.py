@@ -6,11 +6,14 @@ import pytest
 from solver import SolverError
 from solver.retarget.refine import (
     E_ACC,
+    MAX_ITERATIONS,
+    PATIENCE,
     acceleration,
     hampel,
     interpolate_gaps,
     lowpass,
     refine_trajectory,
+    remaining_work,
 )
 from solver.retarget.spline import fit_bspline
 
@@ -221,10 +224,19 @@ def test_iteration_stops_at_the_cap_and_masks_what_is_left(truth):
 
     noisy = truth.copy()
     noisy[f, j] += delta
+    # By default, rounds that change nothing end the refinement after PATIENCE of them, long before the
+    # cap; with min_progress = 0 (the paper's rule) it runs to the cap.
+    stopped = refine_trajectory(noisy, FPS, ROT, Recorder(truth, stubborn), length=LENGTH, prefilter=False)
+    assert stopped.log.iterations == PATIENCE < MAX_ITERATIONS
+    assert stopped.log.stalled and not stopped.log.converged
+    assert len(set(stopped.log.excess)) == 1 and stopped.log.excess[0] > 0
     resolve = Recorder(truth, stubborn)
-    r = refine_trajectory(noisy, FPS, ROT, resolve, length=LENGTH, prefilter=False, max_iterations=4)
+    r = refine_trajectory(
+        noisy, FPS, ROT, resolve, length=LENGTH, prefilter=False, max_iterations=4, min_progress=0.0
+    )
     assert r.log.iterations == 4 and len(resolve.calls) == 4
-    assert r.log.violations == (3, 3, 3, 3, 3) and not r.log.converged
+    assert r.log.violations == (3, 3, 3, 3, 3) and not r.log.converged and not r.log.stalled
+    np.testing.assert_array_equal(stopped.valid, r.valid)
     assert r.log.unresolved.tolist() == [[f - 1, j], [f, j], [f + 1, j]]
     expected = np.ones_like(r.valid)
     expected[f - 1 : f + 2, j] = False
@@ -311,3 +323,11 @@ def test_bad_input_is_refused(truth):
     noisy[50, 1] += 0.5
     with pytest.raises(SolverError, match="resolve returned shape"):
         refine_trajectory(noisy, FPS, ROT, lambda f, s: s[:, :2], length=LENGTH)
+
+
+def test_the_estimate_of_later_rounds_follows_how_they_shrink():
+    assert remaining_work([], 5) == 0 and remaining_work([40], 0) == 0
+    assert remaining_work([40], 3) == pytest.approx(40 * (0.5 + 0.25 + 0.125))  # no history: halving
+    assert remaining_work([40, 10], 2) == pytest.approx(10 * (0.25 + 0.0625))  # shrinking by 4
+    # Rounds that hardly shrink end within PATIENCE more (the stopping rule), however many are allowed.
+    assert remaining_work([40, 39], 18) == 39 * PATIENCE

@@ -16,10 +16,12 @@ import hashlib
 import json
 import multiprocessing
 import os
+import signal
 import tempfile
 import zipfile
 from collections.abc import Callable, Mapping
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
@@ -96,9 +98,13 @@ def _digest(text: str) -> str:
 _worker_shared: Any = None
 
 
-def _set_shared(shared: Any) -> None:
+def _start_worker(shared: Any) -> None:
+    """A worker's start: it keeps the shared data, and leaves Ctrl-C to the process that started it (a
+    terminal's Ctrl-C reaches every process of its group: workers would die mid-frame, each with its
+    own traceback; instead the caller stops handing out frames and the workers finish theirs)."""
     global _worker_shared
     _worker_shared = shared
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _call_with_worker_shared(solve: Callable[[Any, Any], Result], task: Any) -> Result:
@@ -158,7 +164,7 @@ def _run_locally(solve, shared, tasks, todo, store, workers, report, total, done
     # Spawned workers (not forked) behave the same on every platform and inherit no threads or locks.
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(
-        workers, mp_context=context, initializer=_set_shared, initargs=(shared,)
+        workers, mp_context=context, initializer=_start_worker, initargs=(shared,)
     ) as pool:
         pending = {pool.submit(_call_with_worker_shared, solve, tasks[f]): f for f in todo}
         try:
@@ -168,6 +174,14 @@ def _run_locally(solve, shared, tasks, todo, store, workers, report, total, done
                     store.save(pending.pop(future), future.result())
                     done += 1
                     report(done, total)
+        except BrokenProcessPool as err:
+            for future in pending:
+                future.cancel()
+            raise SolverError(
+                "a worker process ended before finishing its frame. From a script, call this under "
+                "`if __name__ == \"__main__\":`: each worker starts by importing the script (Python's "
+                "spawn start method), and would otherwise run it again"
+            ) from err
         except BaseException:
             for future in pending:
                 future.cancel()

@@ -7,9 +7,16 @@ Stages, each with its own progress (``progress(stage, done, total)``, stages in 
 2. ``root`` and ``full`` — every frame solved on its own (§3.4.2): the root alone, then the full pose
    seeded by it (:mod:`.frames`).
 3. ``refine`` — acceleration violations replaced by interpolation and re-solved (§3.4.3,
-   :func:`.refine.refine_trajectory`).
+   :func:`.refine.refine_trajectory`), until none is left, rounds stop helping, or the paper's cap; one
+   progress bar over all its rounds, its total an estimate (:func:`.refine.remaining_work`).
 4. ``spline`` — a cubic B-spline per DOF with a fixed number of control points (§3.4.4,
-   :func:`.spline.fit_bspline`), evaluated at every frame: the result.
+   :func:`.spline.fit_bspline`), evaluated at every frame: the result. The count is the paper's, about
+   :data:`CONTROL_PER_SECOND` per second, where that fits: when the fitted curves put the contacts
+   (markers, without contacts) more than :data:`FIT_BAR` times as far from their targets as the
+   per-frame estimate does, in median, the count grows by half until they fit or it reaches the frame
+   count. A short, fast motion needs more than its length gives (a whole manipulation in 60 frames:
+   six control points put the contacts 80 mm off where the frames reached 7 mm). A result that still
+   misses is returned with a warning saying why (:attr:`Retarget.warnings`), never silently.
 5. ``baselines`` (when asked for) — the §4.6 baselines on the same inputs, each given our root pass as
    its root and the same per-frame solves, refinement and spline (:mod:`.baselines`); all three methods'
    final curves measured alike into Table 1.
@@ -54,7 +61,7 @@ from .frames import (
 from .interchange import save_kmexp
 from .metrics import IntersectionMeter, Intersections, mean_distances
 from .motion import Motion
-from .refine import E_ACC, MAX_ITERATIONS, RefineLog, refine_trajectory
+from .refine import E_ACC, MAX_ITERATIONS, MIN_PROGRESS, RefineLog, refine_trajectory, remaining_work
 from .spline import SplineFit, fit_bspline
 
 #: The stages a retarget reports progress for, in order.
@@ -65,6 +72,12 @@ BASELINES = {"Keypoint": keypoint_tasks, "Keyvector": keyvector_tasks}
 #: Default spline control points per second of motion (the paper's Table 4: 60-120 points for 6-13 s
 #: motions at 120 fps, 9-12 per second).
 CONTROL_PER_SECOND = 10.0
+#: The final curves may leave the contacts (or markers) this many times as far from their targets as the
+#: per-frame estimate does, in median, before the spline gets more control points (or, at the most, a
+#: warning).
+FIT_BAR = 1.5
+#: Each try at fitting grows the control point count by this factor.
+CONTROL_GROWTH = 1.5
 
 Progress = Callable[[str, int, int], None]
 
@@ -85,8 +98,12 @@ class RetargetOptions:
     e_acc : float
         Acceleration threshold of the refinement, rad/s² (translations in hand lengths/s²).
     max_refine_iterations : int
+    min_refine_progress : float
+        The refinement ends when rounds stop removing this fraction of the excess acceleration
+        (:func:`.refine.refine_trajectory`; 0: only the cap ends it, as in the paper).
     n_control : int or None
-        Spline control points per DOF (default: :data:`CONTROL_PER_SECOND` per second, at least 4).
+        Spline control points per DOF (default: :data:`CONTROL_PER_SECOND` per second, at least 4, more
+        where that does not fit; see the module docstring). A given count is used as it is.
     use_table : bool
         Keep the hand out of the motion's table (Eq. 6).
     intersections : bool
@@ -100,6 +117,7 @@ class RetargetOptions:
     refine: bool = True
     e_acc: float = E_ACC
     max_refine_iterations: int = MAX_ITERATIONS
+    min_refine_progress: float = MIN_PROGRESS
     n_control: int | None = None
     use_table: bool = True
     intersections: bool = True
@@ -138,6 +156,13 @@ class Retarget:
         Wall-clock seconds of each stage.
     iterations : dict
         Objective evaluations of the root, full and refine solves.
+    estimate_marker_distance : (F,)
+        The per-frame estimate's mean marker distances.
+    default_control : int
+        The paper's control point count for this motion (``len(spline.control)`` may be more).
+    warnings : tuple of str
+        What is wrong with the result, in words (e.g. contacts the final curves leave much farther off
+        than the frames reached, and why).
     """
 
     motion: Motion
@@ -156,6 +181,9 @@ class Retarget:
     table: Table | None
     seconds: dict
     iterations: dict
+    estimate_marker_distance: np.ndarray = field(default_factory=lambda: np.empty(0))
+    default_control: int = 0
+    warnings: tuple[str, ...] = ()
 
     def summary(self) -> dict:
         """Figures of the result (JSON-serializable): distances in millimetres, seconds per stage."""
@@ -170,7 +198,11 @@ class Retarget:
             "median_contact_distance_mm": mm(self.contact_distance),
             "median_marker_distance_mm": mm(self.marker_distance),
             "median_estimate_contact_distance_mm": mm(self.estimate_contact_distance),
+            "median_estimate_marker_distance_mm": mm(self.estimate_marker_distance),
             "spline_control_points": len(self.spline.control),
+            "spline_default_control_points": self.default_control,
+            "refinement": refinement_outcome(self.refine_log),
+            "refine_rounds": 0 if self.refine_log is None else self.refine_log.iterations,
             "masked_samples": int((~self.valid).sum()),
             "seconds": {k: round(v, 3) for k, v in self.seconds.items()},
             "iterations": dict(self.iterations),
@@ -180,7 +212,20 @@ class Retarget:
                 out[f"max_{name}_percent"] = float(np.max(getattr(self.intersections, name)))
         if self.table is not None:
             out["table1"] = self.table.to_dict()
+        out["warnings"] = list(self.warnings)
         return out
+
+
+def refinement_outcome(log: RefineLog | None) -> str:
+    """How the refinement ended, in words (the summary's ``refinement``)."""
+    if log is None:
+        return "skipped"
+    if log.converged:
+        return f"converged in {log.iterations} rounds"
+    if log.cancelled:
+        return f"cancelled after {log.iterations} rounds"
+    why = "rounds stopped helping" if log.stalled else "reached the cap"
+    return f"{why} after {log.iterations} rounds, {log.violations[-1]} samples still beyond the threshold"
 
 
 def _solve(hand, task) -> dict:
@@ -314,14 +359,20 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
         "root_pass": options.root_pass,
         "use_table": options.use_table,
     }
-    refine_identity = {"e_acc": options.e_acc, "max_refine_iterations": options.max_refine_iterations}
+    refine_identity = {
+        "e_acc": options.e_acc,
+        "max_refine_iterations": options.max_refine_iterations,
+        "min_refine_progress": options.min_refine_progress,
+    }
 
-    def run(stage: str, label: str, stage_tasks: dict, refining: bool = False) -> dict[int, dict]:
+    def run(stage: str, label: str, stage_tasks: dict, refining: bool = False, shift=(0, 0.0)) -> dict:
+        """The stage's frames solved (``shift``: frames this bar counted before, and expects after)."""
         extra = refine_identity if refining else {}
         store = FrameStore(folder / stage, identity | extra | {"stage": stage})
+        before, after = shift
         return run_frames(
             _solve, hand if isinstance(hand, HandSpec) else target, stage_tasks, store, workers=workers,
-            scheduler=scheduler, progress=lambda d, t: report(label, d, t),
+            scheduler=scheduler, progress=lambda d, t: report(label, before + d, round(before + t + after)),
         )  # fmt: skip
 
     def thetas(results: dict[int, dict], frames) -> np.ndarray:
@@ -335,27 +386,31 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
         (refined, valid, log, objective evaluations)."""
         if not (options.refine and F >= 3):
             return estimate.copy(), np.isfinite(estimate), None, 0
-        step, count = [0], [0]
+        sizes, count = [], [0]  # frames of each re-solve; objective evaluations
 
         def resolve(frames, seeds):
-            step[0] += 1
+            sizes.append(len(frames))
             redo = {int(f): reseeded(by_frame[int(f)], s) for f, s in zip(frames, seeds, strict=True)}
-            results = run(f"{name}-{step[0]:02d}", label, redo, refining=True)
+            later = remaining_work(sizes, options.max_refine_iterations + 1 - len(sizes))
+            shift = (sum(sizes[:-1]), later)
+            results = run(f"{name}-{len(sizes):02d}", label, redo, refining=True, shift=shift)
             count[0] += evaluations(results)
             return thetas(results, frames)
 
         r = refine_trajectory(
             estimate, motion.fps, rig.is_rotation, resolve, length=target.length, e_acc=options.e_acc,
-            max_iterations=options.max_refine_iterations,
+            max_iterations=options.max_refine_iterations, min_progress=options.min_refine_progress,
         )  # fmt: skip
+        done = sum(sizes) or 1
+        report(label, done, done)
         return r.theta, r.valid, r.log, count[0]
 
-    n_control = options.n_control or max(4, round(CONTROL_PER_SECOND * (F - 1) / motion.fps) + 1)
+    default_control = min(F, max(4, round(CONTROL_PER_SECOND * (F - 1) / motion.fps) + 1))
 
-    def fit(refined: np.ndarray, valid: np.ndarray) -> tuple[SplineFit, np.ndarray]:
+    def fit(refined: np.ndarray, valid: np.ndarray, n: int) -> tuple[SplineFit, np.ndarray]:
         """§3.4.4: the spline, and its curves brought into the rig's bounds (unwrapped angles past the
         limits wrap back, not clip)."""
-        spline = fit_bspline(refined, min(n_control, F), valid=valid, fps=motion.fps)
+        spline = fit_bspline(refined, min(n, F), valid=valid, fps=motion.fps)
         return spline, rig.clip(spline.values)
 
     clock = time.perf_counter()
@@ -373,6 +428,7 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
     fulls = run("full", "full", {t.frame: t for t in fulls_tasks})
     estimate = thetas(fulls, range(F))
     estimate_contact = np.array([fulls[f]["contact_distance"] for f in range(F)], dtype=np.float64)
+    estimate_marker = np.array([fulls[f]["marker_distance"] for f in range(F)], dtype=np.float64)
     iterations["full"] = evaluations(fulls)
     seconds["full"] = time.perf_counter() - clock
 
@@ -380,12 +436,31 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
     refined, valid, log, iterations["refine"] = refine(
         "refine", "refine", estimate, {t.frame: t for t in fulls_tasks}
     )
-    report("refine", 1, 1)
     seconds["refine"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
-    spline, theta = fit(refined, valid)
-    report("spline", 1, 1)
+    warnings = []
+    counts = [options.n_control] if options.n_control else _control_counts(default_control, F)
+    # Leaving out what refinement could not smooth (§3.4.3) first; if no count fits that way, all
+    # samples (a motion faster than the threshold has too few left to bridge the gaps).
+    masks = [valid] + ([np.isfinite(refined)] if not valid.all() else [])
+    tries = [(mask, n) for mask in masks for n in counts]
+    fits = []  # (ratio to the estimate, spline, curves, contact and marker distances) of each try
+    for mask, n in tries:
+        spline, theta = fit(refined, mask, n)
+        distances = _distances(motion, target, annotation, contacts, theta)
+        fits.append((_fit_ratio(distances, (estimate_contact, estimate_marker)), spline, theta, distances))
+        report("spline", len(fits), len(tries))
+        if fits[-1][0] <= FIT_BAR:
+            break
+    best = min(range(len(fits)), key=lambda i: fits[i][0])
+    ratio, spline, theta, (contact, marker) = fits[best]
+    if best >= len(counts):
+        valid = tries[best][0]  # the fit saw every sample
+        warnings.append(_unmasked_warning(len(spline.control), log))
+    if ratio > FIT_BAR:
+        warnings.append(_misfit_warning(ratio, len(spline.control), (contact, marker), valid, log))
+    report("spline", len(tries), len(tries))
     seconds["spline"] = time.perf_counter() - clock
 
     baselines, table = {}, None
@@ -402,13 +477,12 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
                 f"{name}-refine", "baselines", thetas(solved, range(F)), by_frame
             )
             iterations[name] = evaluations(solved) + resolved
-            baselines[method] = fit(b_refined, b_valid)[1]
+            baselines[method] = fit(b_refined, b_valid, len(spline.control))[1]  # our count
         report("baselines", 1, 1)
         seconds["baselines"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
     vertices = np.stack([target.posed_vertices(t) for t in theta])
-    contact, marker = _distances(motion, target, annotation, contacts, theta)
     if options.baselines:
         rows = {m: _distances(motion, target, annotation, contacts, c) for m, c in baselines.items()}
         table = Table.from_distances({**rows, "Ours": (contact, marker)})
@@ -440,8 +514,53 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
     )
     return Retarget(
         result_motion, theta, estimate, refined, valid, spline, log, marker, contact, estimate_contact,
-        intersections, contacts, baselines, table, seconds, iterations,
+        intersections, contacts, baselines, table, seconds, iterations, estimate_marker, default_control,
+        tuple(warnings),
     )  # fmt: skip
+
+
+def _control_counts(first: int, frames: int) -> list[int]:
+    """The spline control point counts to try: the paper's, then half as many more each time, up to one
+    per frame."""
+    counts = [min(first, frames)]
+    while counts[-1] < frames:
+        counts.append(min(frames, int(np.ceil(counts[-1] * CONTROL_GROWTH))))
+    return counts
+
+
+def _fit_ratio(final, estimate) -> float:
+    """How many times as far from their targets the final curves leave the contacts as the per-frame
+    estimate does, in median (the markers when there are no contacts; 1 when there is neither)."""
+    for got, reached in zip(final, estimate, strict=True):
+        if np.isfinite(got).any() and np.isfinite(reached).any():
+            return float(np.nanmedian(got) / max(np.nanmedian(reached), 1e-12))
+    return 1.0
+
+
+def _unmasked_warning(n: int, log: RefineLog | None) -> str:
+    """What fitting every sample, the unsmoothed ones too, means, in words."""
+    return (
+        f"refinement ({refinement_outcome(log)}) left too many samples to bridge, so the spline of {n} "
+        "control points follows every frame's solve and keeps their jitter; a motion this fast needs "
+        "more frames per second"
+    )
+
+
+def _misfit_warning(ratio: float, n: int, final, valid: np.ndarray, log: RefineLog | None) -> str:
+    """Why the final curves leave the contacts far off, in words."""
+    what, got = ("contacts", final[0]) if np.isfinite(final[0]).any() else ("markers", final[1])
+    text = (
+        f"the final curves leave the {what} {ratio:.1f} times as far from their targets as the per-frame "
+        f"solves did (median {np.nanmedian(got) * 1e3:.1f} mm), even with {n} spline control points"
+    )
+    masked = int((~valid).sum())
+    if masked:
+        text += (
+            f": the frames' solves disagree from frame to frame, and refinement "
+            f"({refinement_outcome(log)}) left {100 * masked / valid.size:.0f}% of the samples out of the "
+            "fit, so the spline bridges them"
+        )
+    return text + "; a motion this fast needs more frames per second (or --control to set the count)"
 
 
 @dataclass(frozen=True)
@@ -526,7 +645,13 @@ def save_result(
     write_atomically(paths["summary"], json.dumps(result.summary(), indent=2))
     if result.table is not None:
         paths["table1"] = folder / "table1.txt"
-        write_atomically(paths["table1"], result.table.text() + "\n")
+        note = (
+            "Refinement (§3.4.3) was skipped: every method's spline is fitted to its per-frame solves.\n"
+            if result.refine_log is None
+            else f"Our refinement {refinement_outcome(result.refine_log)}.\n"
+        )
+        control = f"Splines of {len(result.spline.control)} control points per DOF for every method.\n"
+        write_atomically(paths["table1"], result.table.text() + "\n\n" + note + control)
     if annotation is not None:
         paths["annotation"] = folder / "annotation.json"
         annotation.save(paths["annotation"])
