@@ -24,6 +24,10 @@ Subcommands:
   speed-up from one to two worker processes.
 
 ``demo``, ``pose`` and ``bench rigs`` need Blender's Python module (``pip install "contact-edit[blender]"``).
+
+Errors in the input end a command with one line on stderr, ``contact-edit <command>: <what is wrong>``,
+and exit status 1 (``--debug`` adds the traceback); Ctrl-C ends it with a line saying what is kept and
+exit status 130. Progress goes to stderr: bars on a terminal, plain periodic lines elsewhere.
 """
 
 from __future__ import annotations
@@ -31,30 +35,138 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import sys
+import time
+
+
+class _InputError(Exception):
+    """Bad input the command line itself finds (an output path that cannot be written, …)."""
+
+
+def _output_file(path: str) -> None:
+    """Refuse an output file that cannot be written before any work is done."""
+    from pathlib import Path
+
+    target = Path(path)
+    if target.is_dir():
+        raise _InputError(f"{path}: a folder; name the file to write")
+    if not target.resolve().parent.is_dir():
+        raise _InputError(f"{path}: no such folder for the output ({target.resolve().parent})")
+
+
+def _output_folder(path: str) -> None:
+    from pathlib import Path
+
+    if Path(path).exists() and not Path(path).is_dir():
+        raise _InputError(f"{path}: not a folder (the output is a folder of files)")
 
 
 def _progress(what: str) -> None:
     print(f"  {what} ...", file=sys.stderr, flush=True)
 
 
-class _StageBars:
-    """A progress bar per stage on stderr: ``bars(stage, done, total)``."""
+def _clock(seconds: float) -> str:
+    """``m:ss`` (``h:mm:ss`` from an hour on)."""
+    s = max(int(seconds), 0)
+    return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
 
-    def __init__(self):
+
+class _StageBars:
+    """Progress of a job's stages on a stream (stderr): ``bars(stage, done, total)``, or with a ``note``.
+
+    On a terminal each stage gets a bar, redrawn in place (at most every ``redraw`` seconds), with the
+    stage's elapsed time and the time left estimated from its rate so far. Elsewhere (a pipe, a log
+    file, CI) no bar: plain lines when a stage starts, after each further tenth of it or ``every``
+    seconds, and when it ends. ``capped``: the total is an upper bound (a solve's evaluation budget),
+    so the time left is one too. Use it as a context manager (or call :meth:`close`) so that the last
+    line is finished, also when the job fails. ``stream`` (default: ``sys.stderr`` when called),
+    ``clock`` and ``tty`` (default: whether the stream is a terminal) are there for tests.
+    """
+
+    WIDTH = 30
+
+    def __init__(self, stream=None, clock=time.monotonic, tty: bool | None = None, every: float = 5.0,
+                 redraw: float = 0.1, capped: bool = False):  # fmt: skip
+        self._stream, self.clock, self._tty = stream, clock, tty
+        self.every, self.redraw, self.capped = every, redraw, capped
         self.stage = None
 
-    def __call__(self, stage: str, done: int, total: int) -> None:
+    @property
+    def stream(self):
+        return self._stream if self._stream is not None else sys.stderr
+
+    @property
+    def tty(self) -> bool:
+        if self._tty is None:
+            try:
+                self._tty = bool(self.stream.isatty())
+            except (AttributeError, ValueError, OSError):
+                self._tty = False
+        return self._tty
+
+    def __enter__(self) -> _StageBars:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __call__(self, stage: str, done: int, total: int, note: str = "") -> None:
+        now = self.clock()
         if stage != self.stage:
-            if self.stage is not None:
-                print(file=sys.stderr)
-            self.stage = stage
-        filled = int(30 * min(done, total) / max(total, 1))
-        print(f"\r  {stage:<9} [{'#' * filled}{'.' * (30 - filled)}] {done}/{total}",
-              end="", file=sys.stderr, flush=True)  # fmt: skip
+            self._finish()
+            self.stage, self.started, self.first = stage, now, done
+            self.shown, self.shown_at, self.drawn = None, now, 0
+        self.done, self.total, self.note, self.now = done, total, note, now
+        if self.tty:
+            if self.shown is None or done >= total or now - self.shown_at >= self.redraw:
+                self._draw()
+        elif (
+            self.shown is None
+            or (done >= total and self.shown < total)
+            or done - self.shown >= max(total, 1) / 10
+            or (now - self.shown_at >= self.every and done != self.shown)
+        ):
+            self._line()
 
     def close(self) -> None:
-        if self.stage is not None:
-            print(file=sys.stderr)
+        self._finish()
+        self.stage = None
+
+    def _status(self, final: bool = False) -> str:
+        done, total = self.done, self.total
+        elapsed = self.now - self.started
+        text = f"{done}/{total}"
+        if not self.capped and total > 0:
+            text += f" ({100 * min(done, total) // total}%)"
+        if self.note:
+            text += f" {self.note}"
+        text += f", {_clock(elapsed)} elapsed"
+        if not final and done < total and done > self.first and elapsed > 0:
+            left = (total - done) * elapsed / (done - self.first)
+            text += f", {'at most ' if self.capped else ''}~{_clock(left)} left"
+        return text
+
+    def _draw(self, final: bool = False) -> None:
+        filled = int(self.WIDTH * min(max(self.done, 0), self.total) / max(self.total, 1))
+        bar = f"  {self.stage:<9} [{'#' * filled}{'.' * (self.WIDTH - filled)}] {self._status(final)}"
+        self.stream.write(f"\r{bar}{' ' * max(self.drawn - len(bar), 0)}")
+        self.stream.flush()
+        self.shown, self.shown_at, self.drawn = self.done, self.now, len(bar)
+
+    def _line(self, final: bool = False) -> None:
+        print(f"  {self.stage:<9} {self._status(final)}", file=self.stream, flush=True)
+        self.shown, self.shown_at = self.done, self.now
+
+    def _finish(self) -> None:
+        """End the current stage's output: the bar's last state and a newline, or a last line."""
+        if self.stage is None or self.shown is None:
+            return
+        if self.tty:
+            self.now = self.clock()
+            self._draw(final=True)
+            print(file=self.stream, flush=True)
+        elif self.shown != self.done:
+            self.now = self.clock()
+            self._line(final=True)
 
 
 def _bench(args: argparse.Namespace) -> int:
@@ -62,6 +174,9 @@ def _bench(args: argparse.Namespace) -> int:
 
     runs = f"median of {args.repeat} runs after {benchmark.WARMUP} untimed ones"
     if args.target == "rigs":
+        if importlib.util.find_spec("bpy") is None:
+            _needs_blender()
+            return 2
         from . import rig_benchmark
 
         runs = f"evaluations: median of {rig_benchmark.EVALUATIONS}; solves: median of {args.repeat} poses"
@@ -77,14 +192,15 @@ def _bench(args: argparse.Namespace) -> int:
     elif args.target == "retarget":
         from solver.retarget import benchmark as retarget_benchmark
 
-        print(
-            retarget_benchmark.format_report(
-                retarget_benchmark.run(frames=args.frames, progress=_StageBars())
-            )
-        )
+        with _StageBars() as bars:
+            report = retarget_benchmark.run(frames=args.frames, progress=bars)
+        print(retarget_benchmark.format_report(report))
         return 0
     elif args.target == "rigs":
-        rows = rig_benchmark.run(repeat=args.repeat, progress=_progress)
+        from .batch import quiet_stdout
+
+        with quiet_stdout(not args.debug):  # Rigify's Generate Rig reports every step on stdout
+            rows = rig_benchmark.run(repeat=args.repeat, progress=_progress)
     elif args.target == "tangible":
         from tangible import benchmark as tangible_benchmark
 
@@ -112,14 +228,18 @@ def _build_extension(args: argparse.Namespace) -> int:
     platforms = (
         list(build.PLATFORM_TAGS) if args.all_platforms else args.platform or list(build.DEFAULT_PLATFORMS)
     )
-    try:
-        paths = build.build_extension(Path(args.output), platforms=platforms, progress=_progress)
-    except build.BuildError as err:
-        print(f"contact-edit build-extension: {err}", file=sys.stderr)
-        return 1
+    paths = build.build_extension(Path(args.output), platforms=platforms, progress=_progress)
     for path in paths:
         print(path)
     return 0
+
+
+def _needs_blender() -> None:
+    print(
+        "contact-edit: this command needs Blender's Python module (bpy 5.0.1, Python 3.11); install it "
+        'with pip install "contact-edit[blender]"',
+        file=sys.stderr,
+    )
 
 
 def _blender():
@@ -127,11 +247,7 @@ def _blender():
     try:
         import bpy  # noqa: F401
     except ImportError:
-        print(
-            "contact-edit: this command needs Blender's Python module; install it with\n"
-            '  pip install "contact-edit[blender]"   (bpy 5.0.1, Python 3.11)',
-            file=sys.stderr,
-        )
+        _needs_blender()
         return None
     import contact_edit_addon
 
@@ -146,7 +262,12 @@ def _demo(args: argparse.Namespace) -> int:
 
     result = demo.run(args.out, render=not args.no_render, progress=_progress)
     print(f"contact-edit demo: a procedural human hand grasps a mug ({result.seconds:.1f} s in all)")
-    print(f"  patches transferred onto the mug: {result.patches} ({result.contacts} contact points)")
+    print(f"  pads painted on the hand: {len(result.painted)} ({', '.join(result.painted)})")
+    print(f"  pads transferred onto the mug: {len(result.transferred)} ({result.contacts} contact points)")
+    missed = [name for name in result.painted if name not in result.touching]
+    touching = f"{len(result.touching)}, not {', '.join(missed)}" if missed else f"all {len(result.painted)}"
+    print(f"  pads touching the mug after the solve: {touching}")
+    print(f"  deepest point of the hand inside the mug: {1e3 * result.deepest:.2f} mm")
     print(f"  solve: {result.summary}")
     print(f"  scene:    {result.blend}")
     print(f"  contacts: {result.contacts_file}")
@@ -158,47 +279,45 @@ def _demo(args: argparse.Namespace) -> int:
 def _pose(args: argparse.Namespace) -> int:
     if _blender() is None:
         return 2
+    from pathlib import Path
+
     from geodesics import ContactError
     from solver import SolverError
 
     from . import batch
     from .bridge import BridgeError
 
-    def bar(done: int, total: int, energy: float) -> None:
-        filled = int(30 * min(done, total) / total)
-        print(f"\r  solving [{'#' * filled}{'.' * (30 - filled)}] {done}/{total} energy {energy:.4g}",
-              end="", file=sys.stderr, flush=True)  # fmt: skip
-
-    try:
-        summary = batch.pose_scene(
-            args.scene, args.output, hand=args.hand, target=args.object, contacts=args.contacts,
-            frame=args.frame, stage=args.stage, overwrite=args.overwrite, remap=args.remap, progress=bar,
-        )  # fmt: skip
-    except (BridgeError, ContactError, SolverError) as err:
-        print(f"\ncontact-edit pose: {err}", file=sys.stderr)
-        return 1
-    print(file=sys.stderr)
+    with _StageBars(capped=True) as bars:
+        try:
+            summary = batch.pose_scene(
+                args.scene, args.output, hand=args.hand, target=args.object, contacts=args.contacts,
+                frame=args.frame, stage=args.stage, overwrite=args.overwrite, remap=args.remap,
+                progress=lambda done, total, energy: bars("solving", done, total, f"energy {energy:.4g}"),
+                quiet=not args.debug,
+            )  # fmt: skip
+        except batch.SceneChoiceError as err:  # in the command line's words
+            raise BridgeError(err.message("--hand NAME", "--object NAME")) from err
+        except (BridgeError, ContactError, SolverError) as err:  # say which file, if the error does not
+            scene = Path(args.scene).resolve()
+            files = (scene, args.scene, args.output, Path(args.output).resolve(), args.contacts)
+            if not any(str(f) in str(err) for f in files if f is not None):
+                raise BridgeError(f"{scene}: {err}") from err
+            raise
     print(f"contact-edit pose: {summary}")
     print(f"  saved {args.output}")
     return 0
 
 
 def _synthesize(args: argparse.Namespace) -> int:
-    from solver import SolverError
     from solver.retarget import synthetic
 
-    bars = _StageBars()
-    try:
+    _output_file(args.output)
+    with _StageBars() as bars:
         motion = synthetic.generate(
             args.object, frames=args.frames, fps=args.fps, seed=args.seed, scale=args.scale,
             density=args.density, progress=bars,
         )  # fmt: skip
-        bars.close()
-        motion.save(args.output)
-    except (SolverError, OSError) as err:
-        bars.close()
-        print(f"contact-edit synthesize: {err}", file=sys.stderr)
-        return 1
+    motion.save(args.output)
     counts = motion.hand_contacts.count()
     print(f"contact-edit synthesize: {motion}; contacts per touching frame: median {int(_median(counts))}")
     print(f"  saved {args.output}")
@@ -218,32 +337,24 @@ _GRAB_FPS, _CUTOFF = 120.0, 0.01
 
 
 def _import_grab(args: argparse.Namespace) -> int:
-    from geodesics import MeshError
     from geodesics.meshio import load_mesh
-    from solver import SolverError
     from solver.retarget import grab, pair_motion
-    from solver.retarget.motion import MotionError
 
-    bars = _StageBars()
-    try:
-        hand_mesh = load_mesh(args.hand_mesh)
-        object_mesh = load_mesh(args.object_mesh)
-        motion = grab.load_grab(args.motion, hand_mesh, object_mesh, fps=args.fps, pair=False)
-        pairing = None
-        if not args.no_pair:
+    _output_file(args.output)
+    hand_mesh = load_mesh(args.hand_mesh)
+    object_mesh = load_mesh(args.object_mesh)
+    motion = grab.load_grab(args.motion, hand_mesh, object_mesh, fps=args.fps, pair=False)
+    pairing = None
+    if not args.no_pair:
+        with _StageBars() as bars:
             pairing = pair_motion(
                 motion,
                 "object",
                 cutoff=args.cutoff,
                 progress=lambda done, total: bars("pairing", done, total),
             )
-            motion = pairing.apply(motion)
-        bars.close()
-        motion.save(args.output)
-    except (MeshError, MotionError, SolverError, OSError) as err:
-        bars.close()
-        print(f"contact-edit import-grab: {err}", file=sys.stderr)
-        return 1
+        motion = pairing.apply(motion)
+    motion.save(args.output)
     counts = motion.object_contacts.count()
     paired = ""
     if pairing is not None:
@@ -282,44 +393,43 @@ def _retarget(args: argparse.Namespace) -> int:
     from solver import SolverError
     from solver.retarget import annotations, pipeline, synthetic
     from solver.retarget.frames import HandSpec, RetargetWeights
-    from solver.retarget.motion import Motion, MotionError
+    from solver.retarget.metrics import plot_metrics
+    from solver.retarget.motion import Motion
 
     out = Path(args.output)
-    bars = _StageBars()
-    try:
-        motion = Motion.load(args.motion)
-        target = HandSpec(args.target, args.scale)
-        if args.annotation:
-            annotation = annotations.HandPairAnnotation.load(args.annotation)
-        elif motion.source_kind is None:
-            raise SolverError(
-                "the motion's source hand is not a procedural one; give its annotation with --annotation"
-            )
-        else:
-            source = synthetic.source_hand(motion.source_kind, motion.source_scale)
-            annotation = annotations.default_annotation(source, target.build())
-        weights = RetargetWeights(**dict(args.weight or ()))
-        options = pipeline.RetargetOptions(
-            weights=replace(weights, c=0.0) if args.no_contacts else weights,
-            root_pass=not args.no_root_pass, refine=not args.no_refine, n_control=args.control,
-            baselines=args.baselines,
-        )  # fmt: skip
+    _output_folder(args.output)
+    motion = Motion.load(args.motion)
+    target = HandSpec(args.target, args.scale)
+    if args.annotation:
+        annotation = annotations.HandPairAnnotation.load(args.annotation)
+    elif motion.source_kind is None:
+        raise SolverError(
+            "the motion's source hand is not a procedural one; give its annotation with --annotation"
+        )
+    else:
+        source = synthetic.source_hand(motion.source_kind, motion.source_scale)
+        annotation = annotations.default_annotation(source, target.build())
+    weights = RetargetWeights(**dict(args.weight or ()))
+    options = pipeline.RetargetOptions(
+        weights=replace(weights, c=0.0) if args.no_contacts else weights,
+        root_pass=not args.no_root_pass, refine=not args.no_refine, n_control=args.control,
+        baselines=args.baselines,
+    )  # fmt: skip
+    with _StageBars() as bars:
         result = pipeline.retarget(
             motion, target, annotation, options, folder=out / "frames", workers=args.workers,
             scheduler=args.scheduler, progress=bars,
         )  # fmt: skip
-        bars.close()
-        plot = not args.no_plot and importlib.util.find_spec("matplotlib") is not None
-        paths = pipeline.save_result(result, out, annotation, plot=plot, rig=target.build().rig)
-    except (SolverError, MotionError, OSError) as err:
-        bars.close()
-        print(f"contact-edit retarget: {err}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        bars.close()
-        print(f"contact-edit retarget: interrupted; run the same command again to resume ({out / 'frames'})",
-              file=sys.stderr)  # fmt: skip
-        return 130
+    title = f"{Path(args.motion).name}: {motion.n_frames} frames onto {args.target} (scale {args.scale:g})"
+    plot = not args.no_plot and importlib.util.find_spec("matplotlib") is not None
+    paths = pipeline.save_result(result, out, annotation, plot=False, rig=target.build().rig)
+    if plot:  # here rather than in save_result, to give the plot its title
+        counts = None if result.transferred is None else result.transferred.hand_contacts.count()
+        paths["plot"] = plot_metrics(
+            out / "metrics.png", result.motion.fps, marker_distance=result.marker_distance,
+            contact_distance=result.contact_distance, contact_count=counts,
+            intersections=result.intersections, title=title,
+        )  # fmt: skip
     summary = result.summary()
     length = target.build().length
     print(f"contact-edit retarget: {motion.n_frames} frames onto {args.target} (scale {args.scale})")
@@ -336,6 +446,9 @@ def _retarget(args: argparse.Namespace) -> int:
         print(f"  {name:<10} {path}")
     if not plot and not args.no_plot:
         print("  metrics.png not written: matplotlib is not installed (pip install 'contact-edit[plots]')")
+    sys.stdout.flush()
+    for warning in summary.get("warnings", []):
+        print(f"  warning: {warning}", file=sys.stderr)
     return 0
 
 
@@ -349,73 +462,131 @@ def _version() -> str:
         return "unknown (not installed)"
 
 
+class _Help(argparse.ArgumentDefaultsHelpFormatter):
+    """Help that shows every option's default. An option whose default is "not given" (None) says in its
+    own help what happens then; a flag is off unless given; a required one has none."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default is None or action.default is False or action.required:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="contact-edit",
         description="Pose hands against objects by their contact areas, retarget hand-object motions and "
         "drive rigs from the puppet device, from the command line.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=_Help,
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    parser.add_argument(
+        "--debug", action="store_true", help="on an error, show its traceback (and Blender's own output)"
+    )
+    # Also accepted after the command (its default is not set there, so it never overrides the above).
+    debug = argparse.ArgumentParser(add_help=False)
+    debug.add_argument(
+        "--debug", action="store_true", default=argparse.SUPPRESS, help="as contact-edit --debug does"
+    )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    bench = commands.add_parser("bench", help="run a benchmark and print its table")
+
+    def command(name: str, help: str, description: str) -> argparse.ArgumentParser:
+        return commands.add_parser(
+            name, help=help, description=description, formatter_class=_Help, parents=[debug]
+        )
+
+    bench = command(
+        "bench",
+        "run a benchmark and print its table",
+        "Time a part of the project and print a table of medians, beside a peer library or the "
+        "procedural hand where one exists.",
+    )
     bench.add_argument(
         "target",
         choices=["geodesics", "contacts", "solver", "rigs", "tangible", "retarget"],
         help="what to benchmark",
     )
     bench.add_argument("--repeat", type=int, default=7, help="runs per timing (the median is shown)")
-    bench.add_argument("--rays", type=int, default=2000, help="rays / targets per query")
+    bench.add_argument("--rays", type=int, default=2000, help="geodesics: rays / targets per query")
     bench.add_argument("--frames", type=int, default=1000, help="retarget: frames of the motion")
     bench.set_defaults(run=_bench)
-    ablation = commands.add_parser(
+    ablation = command(
         "ablation",
-        help="print the contact IK ablation table (Fig. 11)",
-        description="Solve the same grasps with each term of Contact Edit's Eq. 2 removed in turn and print "
+        "print the contact IK ablation table (Fig. 11)",
+        "Solve the same grasps with each term of Contact Edit's Eq. 2 removed in turn and print "
         "the contact errors, as the paper's Fig. 11.",
     )
     ablation.set_defaults(run=_ablation)
-    ext = commands.add_parser("build-extension", help="build the Blender extension zips (one per platform)")
-    ext.add_argument("--output", "-o", default="dist", help="folder for the zips (default: dist)")
+    ext = command(
+        "build-extension",
+        "build the Blender extension zips (one per platform)",
+        "Build the Blender extension as one zip per platform, with every run-time dependency bundled as "
+        "wheels, ready for Blender's Install from Disk.",
+    )
+    ext.add_argument("--output", "-o", default="dist", help="folder for the zips")
     ext.add_argument(
         "--platform", action="append", choices=["linux-x64", "windows-x64", "macos-arm64", "macos-x64"],
-        help="a platform to build for (repeatable; default: linux-x64)",
+        help="a platform to build for, repeatable (default: linux-x64)",
     )  # fmt: skip
     ext.add_argument("--all-platforms", action="store_true", help="build for every supported platform")
     ext.set_defaults(run=_build_extension)
-    demo = commands.add_parser("demo", help="pose a procedural hand on a mug; save, render and summarize")
+    demo = command(
+        "demo",
+        "pose a procedural hand on a mug; save, render and summarize",
+        "The embedded default job: build a procedural hand and a mug, brush a contact pad on each "
+        "fingertip and the palm, wrap the fingers around the mug, transfer the pads where they land, "
+        "solve the grasp from the open hand, key it, measure which pads touch, save and render.",
+    )
     demo.add_argument("--out", default="demo", help="folder for demo.blend, demo.png, contacts.json")
     demo.add_argument("--no-render", action="store_true", help="skip the Cycles render")
     demo.set_defaults(run=_demo)
-    pose = commands.add_parser("pose", help="pose the hand of a saved scene from its contacts")
+    pose = command(
+        "pose",
+        "pose the hand of a saved scene from its contacts",
+        "Open a saved .blend, pose its hand so that its contact patches meet the object's, and save the "
+        "result to a new .blend (written whole or not at all; the input is never written unless "
+        "--overwrite).",
+    )
     pose.add_argument("scene", help="the .blend to pose (never written unless --overwrite)")
     pose.add_argument("--output", "-o", required=True, help="the posed .blend to write")
     pose.add_argument("--hand", help="the hand mesh object (default: the scene's Contact tab choice)")
     pose.add_argument("--object", help="the object mesh (default: the scene's Contact tab choice)")
-    pose.add_argument("--contacts", help="a pairing file to use instead of the scene's stored contacts")
+    pose.add_argument(
+        "--contacts", help="a pairing file to use instead of the scene's contacts (default: the stored ones)"
+    )
     pose.add_argument(
         "--remap", action="store_true", help="project a pairing file made for other meshes by position"
     )
-    pose.add_argument("--frame", type=int, help="pose at this frame and key the pose there")
+    pose.add_argument(
+        "--frame", type=int,
+        help="pose at this frame and key the pose there (default: the scene's current frame, keyed only "
+        "if the armature is animated)",
+    )  # fmt: skip
     pose.add_argument("--stage", choices=["ROOT", "ALL", "SELECTED"], default="ALL", help="which bones move")
     pose.add_argument("--overwrite", action="store_true", help="allow the output to be the input scene")
     pose.set_defaults(run=_pose)
-    synth = commands.add_parser("synthesize", help="write a synthetic hand-object manipulation (.npz motion)")
+    synth = command(
+        "synthesize",
+        "write a synthetic hand-object manipulation (.npz motion)",
+        "Write a synthetic manipulation of an object by the procedural human hand, with its contacts "
+        "and ground truth, in the motion format that 'retarget' reads.",
+    )
     synth.add_argument("output", help="the motion file to write (.npz)")
     synth.add_argument(
         "--object", default="mug", choices=["mug", "cylinder", "box", "sphere"],
-        help="the object the hand manipulates (default mug)",
+        help="the object the hand manipulates",
     )  # fmt: skip
-    synth.add_argument("--frames", type=int, default=600, help="frame count (default 600)")
-    synth.add_argument("--fps", type=float, default=120.0, help="frame rate (default 120)")
+    synth.add_argument("--frames", type=int, default=600, help="frame count")
+    synth.add_argument("--fps", type=float, default=120.0, help="frame rate")
     synth.add_argument("--seed", type=int, default=0, help="draws the motion's variations")
     synth.add_argument("--scale", type=float, default=1.0, help="scale of the whole scene")
-    synth.add_argument(
-        "--density", type=float, default=10.0, help="hand contact samples per cm² (default 10)"
-    )
+    synth.add_argument("--density", type=float, default=10.0, help="hand contact samples per cm²")
     synth.set_defaults(run=_synthesize)
-    imp = commands.add_parser(
-        "import-grab", help="import a GRAB motion exported by the retargeting paper's authors (.npz)"
+    imp = command(
+        "import-grab",
+        "import a GRAB motion exported by the retargeting paper's authors (.npz)",
+        "Read a GRAB motion as the retargeting paper's authors export it (the motion .npz and the hand "
+        "and object meshes), pair its object contacts with the hand and save it in the motion format.",
     )
     imp.add_argument("motion", help="the authors' export (*_right_full_export_motion.npz)")
     imp.add_argument("--hand-mesh", required=True, help="the exported hand mesh (*_full_export_handmesh.obj)")
@@ -423,19 +594,23 @@ def build_parser() -> argparse.ArgumentParser:
         "--object-mesh", required=True, help="the exported object mesh (*_full_export_objectmesh.obj)"
     )
     imp.add_argument("--output", "-o", required=True, help="the motion file to write (.npz)")
-    imp.add_argument(
-        "--fps", type=float, default=_GRAB_FPS, help=f"frame rate (default {_GRAB_FPS:g}, GRAB's)"
-    )
+    imp.add_argument("--fps", type=float, default=_GRAB_FPS, help="frame rate (GRAB's)")
     imp.add_argument(
         "--cutoff", type=float, default=_CUTOFF,
-        help=f"pairing distance ε in metres: farther hand hits are dropped (default {_CUTOFF:g})",
+        help="pairing distance ε in metres: farther hand hits are dropped",
     )  # fmt: skip
     imp.add_argument(
         "--no-pair", action="store_true",
         help="keep the object contacts as they are; do not find hand contacts (default: pair them)",
     )  # fmt: skip
     imp.set_defaults(run=_import_grab)
-    ret = commands.add_parser("retarget", help="retarget a motion onto another hand")
+    ret = command(
+        "retarget",
+        "retarget a motion onto another hand",
+        "Retarget a hand-object motion onto another hand: per-frame contact solves (in parallel "
+        "processes or on a Dask cluster), refinement, a spline fit, metrics and plots. The frames are "
+        "kept in OUTPUT/frames as they finish, so an interrupted run resumes when run again.",
+    )
     ret.add_argument("motion", help="the source motion (.npz, see 'synthesize')")
     ret.add_argument("--target", required=True, help="the target hand: human, witch, alien, tentacle")
     ret.add_argument(
@@ -443,10 +618,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ret.add_argument("--output", "-o", required=True, help="output folder (resumes if it holds this run)")
     ret.add_argument(
-        "--annotation", help="the hand pair's annotation (.json; default: made for procedural hands)"
+        "--annotation", help="the hand pair's annotation, .json (default: made for procedural hands)"
     )
     ret.add_argument("--workers", type=int, help="worker processes (default: one per CPU)")
-    ret.add_argument("--scheduler", help="address of a Dask scheduler to send the frames to")
+    ret.add_argument(
+        "--scheduler", help="address of a Dask scheduler to send the frames to (default: none, solve here)"
+    )
     ret.add_argument("--control", type=int, help="spline control points per DOF (default: 10 per second)")
     ret.add_argument(
         "--weight", action="append", type=_weight, metavar="NAME=VALUE",
@@ -465,11 +642,88 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# The projects' families of exceptions for bad input (module, class): a command that raises one of them
+# has its message shown as it is. Looked up among the modules already imported, so that handling an
+# error imports nothing (nor bpy, which the bridge needs).
+_INPUT_ERRORS = (
+    ("geodesics.errors", "MeshError"),
+    ("geodesics.errors", "GeodesicError"),
+    ("geodesics.errors", "ContactError"),
+    ("solver.errors", "SolverError"),
+    ("solver.retarget.motion", "MotionError"),
+    ("tangible.errors", "TangibleError"),
+    ("contact_edit_addon.bridge.errors", "BridgeError"),
+    ("contact_edit_addon.build", "BuildError"),
+)
+
+
+def _input_error(err: BaseException) -> bool:
+    if isinstance(err, (OSError, _InputError)):
+        return True
+    for module, name in _INPUT_ERRORS:
+        family = getattr(sys.modules.get(module), name, None)
+        if isinstance(family, type) and isinstance(err, family):
+            return True
+    return False
+
+
+def _one_line(text: str) -> str:
+    return " ".join(line.strip() for line in text.splitlines() if line.strip())
+
+
+def _message(err: BaseException) -> str:
+    """An exception as one line: an OSError as ``file: reason``, anything else as its message."""
+    if isinstance(err, OSError) and err.filename is not None and err.strerror:
+        where = f"{err.filename} -> {err.filename2}" if err.filename2 is not None else f"{err.filename}"
+        return _one_line(f"{where}: {err.strerror}")
+    return _one_line(str(err))
+
+
+def _command(args: argparse.Namespace) -> str:
+    return f"{args.command} {args.target}" if args.command == "bench" else args.command
+
+
+def _interrupted(args: argparse.Namespace) -> str:
+    """What Ctrl-C leaves behind, and how to go on from there."""
+    if args.command == "retarget":
+        from pathlib import Path
+
+        frames = Path(args.output) / "frames"
+        return f"interrupted; run the same command again to resume (solved frames are kept in {frames})"
+    if args.command == "bench" and args.target == "retarget":
+        return "interrupted; the benchmark works in temporary folders, so nothing is kept (run it again anew)"
+    return "interrupted"
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
     if getattr(args, "repeat", 1) < 1:
-        build_parser().error("--repeat must be at least 1")
-    return args.run(args)
+        parser.error("--repeat must be at least 1")
+    name = _command(args)
+    try:
+        return args.run(args)
+    except KeyboardInterrupt:
+        if args.debug:
+            import traceback
+
+            traceback.print_exc()
+        print(f"contact-edit {name}: {_interrupted(args)}", file=sys.stderr, flush=True)
+        return 130
+    except Exception as err:
+        if args.debug:
+            import traceback
+
+            traceback.print_exc()
+        if _input_error(err):
+            print(f"contact-edit {name}: {_message(err)}", file=sys.stderr, flush=True)
+        else:
+            print(
+                f"contact-edit {name}: {type(err).__name__}: {_message(err) or 'no message'} (an unexpected "
+                "error; run again with contact-edit --debug to see its traceback)",
+                file=sys.stderr, flush=True,
+            )  # fmt: skip
+        return 1
 
 
 if __name__ == "__main__":

@@ -59,4 +59,4 @@ def test_version_and_help_say_what_the_command_is(capsys):
     assert "each term of Contact Edit's Eq. 2 removed" in capsys.readouterr().out
     with pytest.raises(SystemExit):
         main(["synthesize", "-h"])
-    assert "the object the hand manipulates (default mug)" in capsys.readouterr().out
+    assert "the object the hand manipulates (default: mug)" in " ".join(capsys.readouterr().out.split())

@@ -450,11 +450,11 @@ def plot_metrics(
 ) -> Path:
     """Plot the metrics over time to a PNG (written atomically); returns its path.
 
-    The top panel shows mean marker (orange) and contact (blue) distances in centimetres, with the
-    number of contacts per frame (light pink) normalized to the largest and scaled to the chart's
-    largest distance, as the paper's Fig. 11; the bottom panel the hand-object (green), self (red) and
-    table (blue) intersection volumes in % of the hand's volume, as its Fig. 12. A panel without data
-    is left out. Needs matplotlib (optional, imported here only): SolverError without it.
+    The top panel shows mean marker (orange) and contact (blue) distances in centimetres on its left
+    axis and the number of contacts per frame (light pink band) on its own right axis, as the paper's
+    Fig. 11; the bottom panel the hand-object (green), self (red) and table (blue) intersection volumes
+    in % of the hand's volume, as its Fig. 12. A panel without data is left out. Needs matplotlib
+    (optional, imported here only): SolverError without it.
 
     Parameters
     ----------
@@ -468,6 +468,7 @@ def plot_metrics(
         Width and height of the image in pixels.
     dpi : int
     title : str, optional
+        The figure's title (default: the frame count, duration and frame rate; ``""``: none).
     """
     try:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -491,11 +492,17 @@ def plot_metrics(
     fig = Figure(figsize=(w / dpi, h / dpi), dpi=dpi)
     FigureCanvasAgg(fig)
     axes = list(np.atleast_1d(fig.subplots(panels, 1, sharex=True)))
+    bottom = axes[-1]  # (fig.axes also holds the contact count's twin axis)
+    if title is None:
+        lengths = [v.size for v in series]
+        if intersections is not None:
+            lengths.append(np.asarray(intersections.hand_object).size)
+        frames = max(lengths)
+        title = f"retargeting metrics: {frames} frames ({frames / fps:.1f} s at {fps:g} fps)"
     if title:
         fig.suptitle(title)
     if series:
         ax = axes.pop(0)
-        peak = 0.0
         for values, label, color in (
             (marker_distance, "marker distance", "tab:orange"),
             (contact_distance, "contact distance", "tab:blue"),
@@ -504,22 +511,29 @@ def plot_metrics(
                 continue
             cm = 100.0 * np.asarray(values, dtype=np.float64).reshape(-1)
             ax.plot(np.arange(cm.size) / fps, cm, color=color, lw=1.0, label=label)
-            if np.isfinite(cm).any():
-                peak = max(peak, float(np.nanmax(cm)))
+        ax.set_ylabel("distance (cm)")
+        ax.set_ylim(bottom=0.0)
+        handles, labels = ax.get_legend_handles_labels()
         if contact_count is not None:
+            # A count, not a distance: on its own axis, drawn behind the distance curves.
             count = np.asarray(contact_count, dtype=np.float64).reshape(-1)
-            top = count.max() if count.size and count.max() > 0 else 1.0
-            ax.fill_between(
+            twin = ax.twinx()
+            twin.fill_between(
                 np.arange(count.size) / fps,
-                count / top * (peak or 1.0),
+                count,
                 color="pink",
                 alpha=0.5,
                 lw=0,
-                label="contacts (normalized)",
-                zorder=0,
+                label="contacts (right axis)",
             )
-        ax.set_ylabel("distance (cm)")
-        ax.legend(loc="upper right", fontsize="small")
+            top = float(np.nanmax(count)) if count.size and np.nanmax(count) > 0 else 1.0
+            twin.set_ylim(0.0, 1.05 * top)
+            twin.set_ylabel("contacts per frame (count)")
+            ax.set_zorder(twin.get_zorder() + 1)
+            ax.patch.set_visible(False)
+            more, names = twin.get_legend_handles_labels()
+            handles, labels = handles + more, labels + names
+        ax.legend(handles, labels, loc="upper right", fontsize="small")
         ax.grid(alpha=0.3)
     if intersections is not None:
         ax = axes.pop(0)
@@ -533,7 +547,7 @@ def plot_metrics(
         ax.set_ylabel("intersection (% of hand volume)")
         ax.legend(loc="upper right", fontsize="small")
         ax.grid(alpha=0.3)
-    fig.axes[-1].set_xlabel("time (s)")
+    bottom.set_xlabel("time (s)")
     fig.tight_layout()
 
     target = Path(path)

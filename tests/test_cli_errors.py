@@ -1,0 +1,189 @@
+"""How the command line ends: one line for bad input (exit 1), a traceback only with --debug, a clean
+Ctrl-C (exit 130) that says how to go on, and the retarget's warnings never silent."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from contact_edit_addon.cli import main
+
+
+def one_line(text: str) -> str:
+    lines = text.splitlines()
+    assert len(lines) == 1, text
+    assert "Traceback" not in text
+    return lines[0]
+
+
+def test_a_motion_of_random_bytes_is_one_line_naming_the_file(tmp_path, capsys):
+    motion = tmp_path / "motion.npz"
+    motion.write_bytes(np.random.default_rng(0).bytes(4096))
+    out = tmp_path / "out"
+    assert main(["retarget", str(motion), "--target", "alien", "-o", str(out)]) == 1
+    captured = capsys.readouterr()
+    line = one_line(captured.err)
+    assert line.startswith("contact-edit retarget: ") and str(motion) in line and "not a motion file" in line
+    assert captured.out == "" and not out.exists()  # nothing written
+    # --debug, before or after the command: the same line, after the traceback.
+    for args in (["--debug", "retarget"], ["retarget", "--debug"]):
+        assert main([*args, str(motion), "--target", "alien", "-o", str(out)]) == 1
+        err = capsys.readouterr().err
+        assert err.startswith("Traceback (most recent call last):") and "MotionError" in err
+        assert err.splitlines()[-1] == line
+    assert not out.exists()
+
+
+def test_outputs_that_cannot_be_written_are_refused_before_the_work(tmp_path, capsys, monkeypatch):
+    from solver.retarget import synthetic
+
+    def generate(*args, **kwargs):
+        raise AssertionError("the motion was generated before the output was checked")
+
+    monkeypatch.setattr(synthetic, "generate", generate)
+    assert main(["synthesize", str(tmp_path / "no" / "m.npz")]) == 1
+    assert "no such folder for the output" in one_line(capsys.readouterr().err)
+    assert main(["synthesize", str(tmp_path)]) == 1
+    assert (
+        one_line(capsys.readouterr().err)
+        == f"contact-edit synthesize: {tmp_path}: a folder; name the file to write"
+    )
+    (tmp_path / "file").write_text("x")
+    assert main(["retarget", str(tmp_path / "m.npz"), "--target", "alien", "-o", str(tmp_path / "file")]) == 1
+    assert "not a folder" in one_line(capsys.readouterr().err)
+    assert main(["retarget", str(tmp_path / "m.npz"), "--target", "alien", "-o", str(tmp_path / "out")]) == 1
+    assert one_line(capsys.readouterr().err).endswith("m.npz: no such file")
+
+
+def test_an_unexpected_error_is_one_line_with_a_hint_and_debug_shows_its_traceback(
+    tmp_path, capsys, monkeypatch
+):
+    from solver.retarget import synthetic
+
+    def generate(*args, **kwargs):
+        return 1 / 0
+
+    monkeypatch.setattr(synthetic, "generate", generate)
+    path = str(tmp_path / "m.npz")
+    assert main(["synthesize", path]) == 1
+    line = one_line(capsys.readouterr().err)
+    assert line.startswith("contact-edit synthesize: ZeroDivisionError: division by zero")
+    assert "--debug" in line
+    assert main(["--debug", "synthesize", path]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback (most recent call last):" in err and "return 1 / 0" in err
+    assert err.splitlines()[-1] == line
+
+
+def interrupt(*args, **kwargs):
+    raise KeyboardInterrupt
+
+
+def fake_motion(monkeypatch, frames=44):
+    """Motion.load and the default annotation, without reading or building anything."""
+    from solver.retarget import annotations
+    from solver.retarget.motion import Motion
+
+    motion = SimpleNamespace(n_frames=frames, source_kind="human", source_scale=1.0, fps=120.0)
+    monkeypatch.setattr(Motion, "load", staticmethod(lambda path: motion))
+    monkeypatch.setattr(annotations, "default_annotation", lambda source, target: None)
+    return motion
+
+
+def test_ctrl_c_in_a_retarget_says_how_to_resume(tmp_path, capsys, monkeypatch):
+    from solver.retarget import pipeline
+
+    fake_motion(monkeypatch)
+    monkeypatch.setattr(pipeline, "retarget", interrupt)
+    out = tmp_path / "out"
+    assert main(["retarget", "grasp.npz", "--target", "alien", "-o", str(out)]) == 130
+    line = one_line(capsys.readouterr().err)
+    assert line == (
+        "contact-edit retarget: interrupted; run the same command again to resume "
+        f"(solved frames are kept in {out / 'frames'})"
+    )
+
+
+def test_ctrl_c_elsewhere_ends_with_one_line_and_status_130(tmp_path, capsys, monkeypatch):
+    from solver.retarget import benchmark, synthetic
+
+    monkeypatch.setattr(synthetic, "generate", interrupt)
+    assert main(["synthesize", str(tmp_path / "m.npz")]) == 130
+    assert one_line(capsys.readouterr().err) == "contact-edit synthesize: interrupted"
+    assert not (tmp_path / "m.npz").exists()
+    # The retarget benchmark works in temporary folders: it says there is nothing to resume.
+    monkeypatch.setattr(benchmark, "run", interrupt)
+    assert main(["bench", "retarget"]) == 130
+    line = one_line(capsys.readouterr().err)
+    assert line.startswith("contact-edit bench retarget: interrupted;") and "nothing is kept" in line
+    # With --debug, the traceback too.
+    assert main(["--debug", "synthesize", str(tmp_path / "m.npz")]) == 130
+    err = capsys.readouterr().err
+    assert "Traceback" in err and "KeyboardInterrupt" in err
+    assert err.splitlines()[-1] == "contact-edit synthesize: interrupted"
+
+
+class FakeRetarget:
+    """What the CLI reads of a retarget's result."""
+
+    def __init__(self, warnings=None):
+        self._summary = {"median_contact_distance_mm": 2.0, "median_marker_distance_mm": 5.0, "frames": 44}
+        if warnings is not None:
+            self._summary["warnings"] = warnings
+        self.seconds = {"root": 1.0, "full": 3.0}
+        self.table = None
+        self.motion = SimpleNamespace(fps=120.0)
+        self.marker_distance = np.full(44, 0.005)
+        self.contact_distance = np.full(44, 0.002)
+        self.intersections = None
+        self.transferred = SimpleNamespace(hand_contacts=SimpleNamespace(count=lambda: np.full(44, 30)))
+
+    def summary(self):
+        return dict(self._summary)
+
+
+def test_the_retarget_prints_each_warning_of_its_summary(tmp_path, capsys, monkeypatch):
+    from solver.retarget import pipeline
+
+    fake_motion(monkeypatch)
+    monkeypatch.setattr(pipeline, "save_result", lambda result, out, annotation, plot, rig: {})
+    warnings = ["the final contact distance (9.1 mm) is far worse than the per-frame estimate (2.0 mm)",
+                "12 frames were masked"]  # fmt: skip
+    monkeypatch.setattr(pipeline, "retarget", lambda *a, **k: FakeRetarget(warnings))
+    args = ["retarget", "grasp.npz", "--target", "alien", "-o", str(tmp_path / "out"), "--no-plot"]
+    assert main(args) == 0
+    captured = capsys.readouterr()
+    assert "median contact distance: 2.00 mm" in captured.out and "warning" not in captured.out
+    assert [line for line in captured.err.splitlines() if "warning" in line] == [
+        f"  warning: {w}" for w in warnings
+    ]
+    # A summary without the key (as today's) prints none.
+    monkeypatch.setattr(pipeline, "retarget", lambda *a, **k: FakeRetarget())
+    assert main(args) == 0
+    assert "warning" not in capsys.readouterr().err
+
+
+def test_the_retarget_titles_its_plot(tmp_path, capsys, monkeypatch):
+    pytest.importorskip("matplotlib")
+    from solver.retarget import metrics, pipeline
+
+    fake_motion(monkeypatch)
+    monkeypatch.setattr(pipeline, "retarget", lambda *a, **k: FakeRetarget())
+    saved = {}
+    monkeypatch.setattr(
+        pipeline, "save_result", lambda result, out, annotation, plot, rig: saved.update(plot=plot) or {}
+    )
+    plotted = {}
+
+    def plot_metrics(path, fps, **kwargs):
+        plotted.update(kwargs, path=path, fps=fps)
+        return path
+
+    monkeypatch.setattr(metrics, "plot_metrics", plot_metrics)
+    out = tmp_path / "out"
+    assert main(["retarget", str(tmp_path / "grasp.npz"), "--target", "alien", "-o", str(out)]) == 0
+    assert saved == {"plot": False}  # the CLI plots, with its title
+    assert plotted["title"] == "grasp.npz: 44 frames onto alien (scale 1)"
+    assert plotted["path"] == out / "metrics.png" and plotted["fps"] == 120.0
+    np.testing.assert_array_equal(plotted["contact_count"], np.full(44, 30))
+    assert f"plot       {out / 'metrics.png'}" in capsys.readouterr().out

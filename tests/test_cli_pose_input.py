@@ -1,0 +1,141 @@
+"""`contact-edit pose` on input a newcomer may give it: a file that is not a .blend, a truncated one, a
+scene without a chosen hand. One line saying what is wrong with which file, exit status 1, nothing
+written, nothing of Blender's own output, and the traceback only with --debug."""
+
+import importlib.util
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from .blender import run_blender
+
+pytestmark = pytest.mark.skipif(importlib.util.find_spec("bpy") is None, reason="needs bpy (the dev extra)")
+
+PREVIOUS = b"a previous output, to be left as it is"
+
+
+def contact_edit(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    """The console script in a fresh process (real file descriptors), with its own Blender user folder."""
+    env = {**os.environ, "BLENDER_USER_RESOURCES": str(cwd / "user")}
+    env.pop("PYTHONUNBUFFERED", None)  # Blender's C output is then buffered, as for most users
+    command = [sys.executable, "-c", "import sys; from contact_edit_addon.cli import main; sys.exit(main())"]
+    return subprocess.run([*command, *args], capture_output=True, text=True, cwd=cwd, env=env, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory) -> Path:
+    """A tiny real scene (two meshes, no Contact tab choice), and broken files made from it."""
+    folder = tmp_path_factory.mktemp("pose-input")
+    run_blender(
+        f"""
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.mesh.primitive_cube_add()
+        bpy.ops.mesh.primitive_uv_sphere_add(location=(3, 0, 0))
+        bpy.context.object.name = "Ball"
+        bpy.ops.wm.save_as_mainfile(filepath={str(folder / "tiny.blend")!r})
+        result(True)
+        """,
+        folder / "user",
+    )
+    data = (folder / "tiny.blend").read_bytes()
+    assert len(data) > 1000
+    (folder / "truncated.blend").write_bytes(data[: len(data) // 2])
+    (folder / "random.blend").write_bytes(np.random.default_rng(7).bytes(4096))
+    (folder / "empty.blend").write_bytes(b"")
+    return folder
+
+
+def assert_nothing_written(folder: Path, before: set[str]) -> None:
+    assert (folder / "out.blend").read_bytes() == PREVIOUS
+    assert {p.name for p in folder.iterdir()} == before  # no temporary file either
+
+
+@pytest.mark.parametrize(
+    "name, reason",
+    [
+        ("random", "not a .blend file (Blender does not recognize its contents)"),
+        ("truncated", "a damaged or truncated .blend file (Blender: Missing DNA block)"),
+        ("empty", "an empty file, not a .blend file"),
+        ("missing", "no such .blend file"),
+    ],
+)
+def test_a_file_blender_cannot_open_is_one_line_and_nothing_is_written(files, name, reason):
+    (files / "out.blend").write_bytes(PREVIOUS)
+    before = {p.name for p in files.iterdir()}
+    done = contact_edit("pose", f"{name}.blend", "-o", "out.blend", cwd=files)
+    assert done.returncode == 1
+    assert done.stderr.splitlines() == [f"contact-edit pose: {files / name}.blend: {reason}"]
+    assert done.stdout == ""  # not Blender's "Error: File format is not supported …" or "Read blend: …"
+    assert_nothing_written(files, before)
+
+
+def test_debug_shows_the_traceback_and_blenders_own_error(files):
+    (files / "out.blend").write_bytes(PREVIOUS)
+    before = {p.name for p in files.iterdir()}
+    done = contact_edit("--debug", "pose", "truncated.blend", "-o", "out.blend", cwd=files)
+    assert done.returncode == 1
+    assert "Traceback (most recent call last):" in done.stderr
+    assert "RuntimeError: Error: Loading" in done.stderr  # what Blender raised, chained
+    assert done.stderr.splitlines()[-1].startswith("contact-edit pose: ")
+    assert "Missing DNA block" in done.stdout  # Blender's own report, not hidden with --debug
+    assert_nothing_written(files, before)
+
+
+def test_a_scene_without_a_chosen_hand_names_the_command_line_options(files):
+    done = contact_edit("pose", "tiny.blend", "-o", "posed.blend", cwd=files)
+    assert done.returncode == 1 and done.stdout == ""
+    assert done.stderr.splitlines() == [
+        f"contact-edit pose: {files / 'tiny.blend'}: no hand and no object chosen in the scene's Contact "
+        "tab; name them with --hand NAME --object NAME (mesh objects: Ball, Cube)"
+    ]
+    done = contact_edit("pose", "tiny.blend", "--hand", "Cube", "-o", "posed.blend", cwd=files)
+    assert done.returncode == 1
+    [line] = done.stderr.splitlines()
+    assert "no object chosen" in line and "name it with --object NAME (mesh objects: Ball, Cube)" in line
+    assert "--hand" not in line and "Contact tab first" not in line
+    # Both named, but nothing to pose: still one line, naming the scene.
+    done = contact_edit(
+        "pose", "tiny.blend", "--hand", "Cube", "--object", "Ball", "-o", "posed.blend", cwd=files
+    )
+    assert done.returncode == 1
+    [line] = done.stderr.splitlines()
+    assert line.startswith(f"contact-edit pose: {files / 'tiny.blend'}: ") and "Traceback" not in done.stderr
+    assert not (files / "posed.blend").exists()
+
+
+def test_quiet_stdout_drops_c_level_output_and_restores_the_descriptor(tmp_path):
+    """What Blender's C code prints (printf into the C library's buffer, or straight to descriptor 1) is
+    dropped inside the block, even when the block fails; what is printed around it is kept, in order."""
+    script = """
+import ctypes, os, sys
+from contact_edit_addon.batch import quiet_stdout
+libc = ctypes.CDLL(None)
+print("before", flush=True)
+libc.printf(b"c-before\\n")
+with quiet_stdout():
+    libc.printf(b"Info: Saved copy as .temp.blend\\n")
+    os.write(1, b"raw\\n")
+    print("python")
+try:
+    with quiet_stdout():
+        libc.printf(b"buffered when it fails\\n")
+        raise RuntimeError("inside")
+except RuntimeError:
+    pass
+with quiet_stdout(enabled=False):
+    print("shown", flush=True)
+libc.printf(b"c-after\\n")
+libc.fflush(None)
+print("after", flush=True)
+"""
+    env = {**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")}
+    env.pop("PYTHONUNBUFFERED", None)  # the C library buffers standard output, as for most users
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == ["before", "c-before", "shown", "c-after", "after"]
