@@ -1,10 +1,12 @@
 """The embedded default job: a procedural human hand grasps a mug, the way an animator would do it.
 
-Every step runs the add-on's own operators, as clicks would: paint fingertip, finger and palm patches
-from vertex selections; curl the fingers onto the mug (flex to contact) to see where they land;
-transfer each patch that touches onto the mug there; open the hand again and key it; solve the pose
-from the contacts alone and key it 24 frames later. The scene is saved with its contacts, the contact
-pairing is written as a file for ``contact-edit pose``, and a small Cycles render shows the grasp.
+Every step runs the add-on's own operators, as clicks would: paint a contact pad on each fingertip and
+on the palm with the area brush (one dab each); wrap the fingers around the mug (flex to contact, joint
+by joint from the knuckles) to see where the pads land; transfer each pad onto the mug there; open the
+hand again and key it; solve the pose from the contacts alone and key it 23 frames later. The scene is
+saved with its contacts, the contact pairing is written as a file for ``contact-edit pose``, and a
+small Cycles render (denoised, on a floor with soft shadows) shows the grasp. What the solve reaches is
+measured, not assumed: which pads touch the mug and how deep the hand is inside it.
 """
 
 from __future__ import annotations
@@ -20,36 +22,38 @@ import numpy as np
 from mathutils import Vector
 from scipy.spatial import cKDTree
 
-from . import assets, bridge, store
+from solver.grasp import palm_centre
 
-#: Patches painted on the hand: name -> the bone whose palm-side faces it covers.
-PATCHES = {
-    "palm": "hand",
-    "thumb tip": "thumb_3",
-    "index tip": "index_3",
-    "middle tip": "middle_3",
-    "ring tip": "ring_3",
-    "pinky tip": "pinky_3",
-    "index middle": "index_2",
-    "middle middle": "middle_2",
-    "ring middle": "ring_2",
-    "pinky middle": "pinky_2",
+from . import assets, bridge, posing, store
+
+#: Contact pads brushed on the hand: name -> (the bone whose palm-side skin the pad is on, the radius of
+#: the brush's dab in metres). Small enough that a round fingertip can rest on the mug along all of it.
+PADS = {
+    "palm": ("hand", 0.012),
+    "thumb tip": ("thumb_3", 0.005),
+    "index tip": ("index_3", 0.005),
+    "middle tip": ("middle_3", 0.005),
+    "ring tip": ("ring_3", 0.005),
+    "pinky tip": ("pinky_3", 0.005),
 }
-#: The palm patch is the middle of the palm: its faces within this distance of the palm's centre (metres).
-PALM_RADIUS = 0.025
-#: A patch is transferred where it lands if the curled hand brings it this close to the mug (metres).
+#: The brush's density, contact points per cm² (the add-on's default).
+DENSITY = 100.0
+#: A pad is transferred where it lands if the wrapped hand brings it this close to the mug (metres).
 LANDING_DISTANCE = 0.01
 OPEN_FRAME, GRASP_FRAME = 1, 24
 
 
 @dataclass(frozen=True)
 class DemoResult:
-    """What the demo made and measured."""
+    """What the demo made and measured (lengths in metres)."""
 
     blend: Path
     image: Path | None
     contacts_file: Path
-    patches: int
+    painted: tuple[str, ...]
+    transferred: tuple[str, ...]
+    touching: tuple[str, ...]
+    deepest: float
     contacts: int
     summary: str
     seconds: float
@@ -66,27 +70,22 @@ def run(out: Path, render: bool = True, progress: Callable[[str], None] = lambda
     hand, hand_obj, mug = assets.example_scene(bpy.context, np.zeros(3))
     armature = hand_obj.parent
 
-    progress("painting patches on the hand")
+    progress("painting contact pads on the hand")
     bpy.context.view_layer.objects.active = hand_obj
-    for name, bone in PATCHES.items():
-        faces = hand.palmar_faces(hand.rig.bone_index(bone))
-        if name == "palm":
-            faces = faces[
-                np.linalg.norm(
-                    hand.mesh.vertices[hand.mesh.faces[faces]].mean(axis=1) - assets.palm_centre(hand), axis=1
-                )
-                < PALM_RADIUS
-            ]
-        bridge.select_elements(hand_obj, np.empty(0, np.int64), np.unique(hand.mesh.faces[faces]))
-        bpy.ops.contact_edit.paint(name=name, source="SELECTION", object_name=hand_obj.name)
+    scene.contact_edit.brush_density = DENSITY
+    for name, (bone, radius) in PADS.items():
+        face = _pad_centre(hand, bone)
+        centre = bridge.object_to_world(hand_obj, hand.mesh.vertices[hand.mesh.faces[face]].mean(0)[None])[0]
+        dab = {"name": "", "location": centre, "polygon": int(face), "radius": radius}
+        bpy.ops.contact_edit.paint(name=name, source="STROKE", object_name=hand_obj.name, stroke=[dab])
 
-    progress("curling the fingers onto the mug")
+    progress("wrapping the fingers around the mug")
     for bone in armature.pose.bones:
         bone.select = bone.name not in {"forearm", "hand"}
-    bpy.ops.contact_edit.flex_to_contact()
+    bpy.ops.contact_edit.flex_to_contact(joints="IN_TURN")
     landed = _landing(hand_obj, armature)
 
-    progress(f"transferring {len(landed)} patches onto the mug")
+    progress(f"transferring {len(landed)} pads onto the mug")
     for name, (location, direction) in landed.items():
         bpy.ops.contact_edit.transfer(patch=name, location=location, direction=direction, hierarchy=False)
 
@@ -97,12 +96,14 @@ def run(out: Path, render: bool = True, progress: Callable[[str], None] = lambda
     scene.frame_set(GRASP_FRAME)
     bpy.ops.contact_edit.solve(stage="ALL", keyframe=True)
     scene.frame_start, scene.frame_end = OPEN_FRAME, GRASP_FRAME
+    problem = posing.problem(scene)  # the solved pose as the scene holds it now, measured
+    met = posing.touch(problem, problem.theta0)
 
     contacts_file = out / "contacts.json"
     store.save_pairing(contacts_file, hand_obj, mug)
     image = None
     if render:
-        progress("rendering (Cycles, CPU)")
+        progress("rendering (Cycles, CPU, denoised)")
         image = out / "demo.png"
         _render(scene, [hand_obj, mug], image)
     blend = out / "demo.blend"
@@ -112,15 +113,29 @@ def run(out: Path, render: bool = True, progress: Callable[[str], None] = lambda
         blend=blend,
         image=image,
         contacts_file=contacts_file,
-        patches=len(landed),
+        painted=tuple(PADS),
+        transferred=tuple(landed),
+        touching=met.touching,
+        deepest=float(met.deepest or 0.0),
         contacts=sum(len(hand_set[name]) for name in landed),
         summary=scene.contact_edit.last_solve,
         seconds=time.perf_counter() - start,
     )
 
 
+def _pad_centre(hand, bone: str) -> int:
+    """The palm-side face at the middle of a bone's pad: nearest the area-weighted centre of the bone's
+    palm-side skin (of the palm's, for the palm)."""
+    mesh = hand.mesh
+    faces = hand.palmar_faces(hand.rig.bone_index(bone))
+    centroids = mesh.vertices[mesh.faces[faces]].mean(1)
+    area = mesh.face_areas[faces]
+    centre = (centroids * area[:, None]).sum(0) / area.sum() if bone != "hand" else palm_centre(hand)
+    return int(faces[np.argmin(np.linalg.norm(centroids - centre, axis=1))])
+
+
 def _landing(hand_obj, armature) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """For each hand patch the curled hand brings near the mug: where its axis starts (world) and the
+    """For each hand pad the wrapped hand brings near the mug: where its axis starts (world) and the
     world direction it leaves in."""
     contacts = store.load(hand_obj)
     posed = bridge.posed_hand(hand_obj, contacts.mesh.faces)
@@ -141,8 +156,13 @@ def _landing(hand_obj, armature) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     return landed
 
 
+#: The render: Cycles samples per pixel (denoised, so few are needed) and the sun's angular diameter,
+#: which softens the shadows' edges.
+SAMPLES, SUN_ANGLE = 32, math.radians(6.0)
+
+
 def _render(scene, shown, path: Path) -> None:
-    """A small, quick Cycles CPU render framing the shown objects."""
+    """A small Cycles CPU render framing the shown objects on a floor, denoised by OpenImageDenoise."""
     colours = {"Hand": (0.80, 0.57, 0.45, 1.0), "Mug": (0.20, 0.42, 0.75, 1.0)}
     for obj in shown:
         material = bpy.data.materials.new(obj.name)
@@ -156,6 +176,7 @@ def _render(scene, shown, path: Path) -> None:
         corners += [evaluated.matrix_world @ Vector(c) for c in evaluated.bound_box]
     lo, hi = np.min(corners, axis=0), np.max(corners, axis=0)
     centre, radius = Vector((lo + hi) / 2), float(np.linalg.norm(hi - lo) / 2)
+    _floor(scene, centre, height=float(lo[2]), size=20 * radius)
     camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
     scene.collection.objects.link(camera)
     view = Vector((0.35, -1.0, 0.45)).normalized()
@@ -165,6 +186,7 @@ def _render(scene, shown, path: Path) -> None:
     scene.camera = camera
     sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
     sun.data.energy = 3.0
+    sun.data.angle = SUN_ANGLE
     sun.rotation_euler = (math.radians(40), math.radians(-20), math.radians(-30))
     scene.collection.objects.link(sun)
     world = bpy.data.worlds.new("World")
@@ -173,9 +195,23 @@ def _render(scene, shown, path: Path) -> None:
     scene.world = world
     scene.render.engine = "CYCLES"
     scene.cycles.device = "CPU"
-    scene.cycles.samples = 16
-    scene.cycles.use_denoising = False
+    scene.cycles.samples = SAMPLES
+    scene.cycles.use_denoising = True
+    scene.cycles.denoiser = "OPENIMAGEDENOISE"
     scene.render.resolution_x, scene.render.resolution_y = 480, 360
     scene.render.image_settings.file_format = "PNG"
     scene.render.filepath = str(path)
     bpy.ops.render.render(write_still=True)
+
+
+def _floor(scene, centre: Vector, height: float, size: float) -> None:
+    """A grey square floor under everything shown (its top at ``height``), to catch the shadows."""
+    h = size / 2
+    corners = [(centre.x + x, centre.y + y, height) for x, y in ((-h, -h), (h, -h), (h, h), (-h, h))]
+    data = bpy.data.meshes.new("Floor")
+    data.from_pydata(corners, [], [(0, 1, 2, 3)])
+    material = bpy.data.materials.new("Floor")
+    material.use_nodes = True
+    material.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (0.62, 0.62, 0.64, 1.0)
+    data.materials.append(material)
+    scene.collection.objects.link(bpy.data.objects.new("Floor", data))

@@ -1,4 +1,6 @@
-"""Small shared meshes (session-scoped: TriMesh is immutable)."""
+"""Small shared meshes (session-scoped: TriMesh is immutable), and the README's demo, run once."""
+
+import importlib.util
 
 import numpy as np
 import pytest
@@ -31,5 +33,18 @@ def sharp_cone() -> TriMesh:
     return cone(base_radius=1.0, height=4.0, top_radius=0.0, n_around=16, n_along=4, jitter=0.15, seed=5)
 
 
-def pytest_configure(config):
-    config.addinivalue_line("markers", "slow: a long test that runs by default (deselect: -m 'not slow')")
+
+@pytest.fixture(scope="session")
+def demo(tmp_path_factory):
+    """The README's first command after its install, ``.venv/bin/contact-edit demo --out demo``, run as
+    written in a fresh folder: (the demo's folder, what it printed on stdout)."""
+    if importlib.util.find_spec("bpy") is None:
+        pytest.skip("needs bpy (the dev extra)")
+    from . import readme
+
+    install, pip, line = readme.block("The two commands", "sh", 0).lines()[0].split(" && ")
+    assert (install, pip) == ("python3 -m venv .venv", '.venv/bin/pip install -e ".[blender]"')
+    folder = tmp_path_factory.mktemp("readme-demo")
+    done = readme.run(readme.command(line), folder, folder / "user")
+    assert done.returncode == 0, done.stderr
+    return folder / "demo", done.stdout
