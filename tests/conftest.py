@@ -1,12 +1,19 @@
 """Small shared meshes (session-scoped: TriMesh is immutable), and the README's demo, run once."""
 
 import importlib.util
+import os
 
-import numpy as np
-import pytest
+# One BLAS thread in every process of the suite (its subprocesses inherit it): on two cores shared with
+# other work, OpenBLAS threads waiting for each other made small solves several times slower, and
+# these small problems gain nothing from them. Set before numpy loads; a value already given wins.
+for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
 
-from geodesics.mesh import TriMesh
-from geodesics.primitives import cone, grid_plane
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from geodesics.mesh import TriMesh  # noqa: E402
+from geodesics.primitives import cone, grid_plane  # noqa: E402
 
 
 @pytest.fixture(scope="session")

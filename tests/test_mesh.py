@@ -546,7 +546,7 @@ def test_errors_from_polygons_name_the_polygons():
 
 def test_signed_volume_is_positive_outside_in_negative_inside_out():
     """A unit corner tetrahedron encloses 1/6, wherever it is; turned inside out, -1/6."""
-    V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]) + [3.0, -2.0, 5.0]
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]) + np.array([3.0, -2.0, 5.0])
     F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
     assert TriMesh(V, F).signed_volume == pytest.approx(1 / 6, rel=1e-12)
     assert TriMesh(V, F[:, ::-1]).signed_volume == pytest.approx(-1 / 6, rel=1e-12)

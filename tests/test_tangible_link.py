@@ -1,14 +1,20 @@
 """Simulated firmware → pseudo-terminal → SerialReader, live: accuracy under corruption, an echoing adapter,
 the 2 s topology rule, unplugging, downlink commands, and the pyserial URL schemes. Every test checks that
 it leaves no thread or file open. Corruption is injected on the host link, the only one where the host can
-detect it (relaying pieces recompute CRCs without checking them)."""
+detect it (relaying pieces recompute CRCs without checking them).
+
+Nothing here depends on how much wall time passes (the machine may be busy): the tests wait for states of
+the reader, each with the generous :data:`WAIT`, and check what they see against the simulator's own
+record of what it sent and against the rules by the reader's clock (the exact timing of the 2 s rule is
+checked offline on the simulated clock, in ``test_tangible_topology.py``)."""
 
 import contextlib
 import os
 import socket
 import threading
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
+from difflib import SequenceMatcher
 
 import numpy as np
 import pytest
@@ -28,10 +34,15 @@ from tangible import (
 )
 from tangible import rotations as rot
 from tangible.errors import DeviceError, ProtocolError
-from tangible.protocol import MIN_ID, DataRecord, encode_record
+from tangible.protocol import MIN_ID, AckRecord, DataRecord, encode_record
 
 HALF_DEGREE = np.radians(0.5)
 J = MIN_ID
+#: Longest wait for a state of the reader; a wait ends as soon as its state holds, so this only bounds how
+#: long a broken build hangs (on an idle machine every state here comes within a second or two).
+WAIT = 60.0
+#: Polls a command gets to be acknowledged before it is sent again (the device takes a few).
+RESEND = 50
 
 
 @pytest.fixture(autouse=True)
@@ -83,13 +94,22 @@ def device(n_joints_per_arm=3) -> DeviceTree:
     return DeviceTree(pieces)
 
 
-def drain(reader, sim, quiet=0.15):
-    """Stop the simulator and wait until the reader has read everything written."""
+def until(reader, predicate, what: str):
+    """The reader's first state for which ``predicate`` holds (waiting up to :data:`WAIT`)."""
+    state = reader.wait_for(predicate, timeout=WAIT)
+    assert state is not None, f"waited {WAIT:g} s for {what}; the reader is at {reader.state()}"
+    return state
+
+
+def drain(reader, sim):
+    """Stop the simulator and wait until the reader has read every byte it wrote and closed the reply
+    windows they came in (records that damage shifted are recovered when a window closes, and the
+    observer hears of them right after that publication: so three more polls)."""
     sim.stop()
-    seen = -1
-    while seen != reader.state().link.bytes:
-        seen = reader.state().link.bytes
-        time.sleep(quiet)
+    written = sim.stats.bytes
+    read = until(reader, lambda s: s.link.bytes >= written, f"the {written} bytes the simulator wrote")
+    polls = read.link.polls
+    until(reader, lambda s: s.link.polls >= polls + 3, "three more polls")
 
 
 def test_reader_reproduces_joint_rotations_within_half_a_degree_with_5_percent_corruption(simulator):
@@ -99,38 +119,57 @@ def test_reader_reproduces_joint_rotations_within_half_a_degree_with_5_percent_c
     sim = simulator(dev, motion=motion, faults=Faults.corrupt(0.05, garbage=0.05), seed=11)
     with SerialReader(sim.path, observer=lambda r, t: received[encode_record(r)].append(r)) as reader:
         sim.start()
-        mid = reader.wait_for(lambda s: len(s.attached) == len(dev) and s.link.frames > 400, timeout=10)
-        assert mid is not None
-        time.sleep(1.0)
+        mid = until(reader, lambda s: len(s.attached) == len(dev) and s.link.frames > 400, "400 records")
+        # As many records again and more, with damage of both kinds on the way (a few per hundred replies).
+        until(
+            reader,
+            lambda s: s.link.frames > 800 and s.link.short > 0 and s.link.oversize > 0,
+            "800 records, a cut-off reply and one with garbage",
+        )
         drain(reader, sim)
         state = reader.state()
     sent = [s for s in sim.history if s.record is not None]
     intact = [s for s in sent if s.intact]
     damaged = [s for s in sent if s.fault not in ("", "lose")]
     assert len(sent) > 700 and 0.02 < len(damaged) / len(sent) < 0.08
-    # No valid record lost, no damaged one accepted.
-    want = defaultdict(int)
-    for s in intact:
-        want[encode_record(s.record)] += 1
-    assert {k: len(v) for k, v in received.items()} == dict(want)
+    # No valid record lost, and no damaged one accepted but by the chance CRC-8 leaves (1 in 256: a record a
+    # bit flip passed, or one a dropped byte shifted onto the next record's first byte): at most two such in
+    # a run (about one run in a hundred has one), each sharing 14 or more of its 18 bytes with a damaged
+    # record, each taking at most the record after it with it.
+    want = Counter(encode_record(s.record) for s in intact)
+    got = Counter({k: len(v) for k, v in received.items()})
+    chance, lost = got - want, want - got
+    assert sum(chance.values()) <= 2 and sum(lost.values()) <= sum(chance.values()), (chance, lost)
+    for k in chance:
+        near = max(SequenceMatcher(None, k, encode_record(s.record)).ratio() for s in damaged)
+        assert near >= 2 * 14 / 36, f"{k.hex()} was accepted, but no damaged record looks like it"
     # Every reading equals the simulated rotation within the device's accuracy (in fact to quantization).
-    data = [s for s in intact if isinstance(s.record, DataRecord)]
-    got = joint_rotation([received[encode_record(s.record)][0].angles for s in data])
-    err = rot.angle(got, np.array([s.rotation for s in data]))
+    data = [s for s in intact if isinstance(s.record, DataRecord) and encode_record(s.record) in received]
+    got_rotations = joint_rotation([received[encode_record(s.record)][0].angles for s in data])
+    err = rot.angle(got_rotations, np.array([s.rotation for s in data]))
     assert len(data) > 300 and err.max() < np.radians(0.1) < HALF_DEGREE
-    # The published state holds each joint's latest reading; the link counted the damage.
+    # The published state holds each joint's latest reading (unless a chance record came after it); the
+    # link counted the records and the damage.
     last = {s.record.creator: s for s in data}
+    chance_raw = {(r.creator, r.raw) for k in chance if isinstance(r := received[k][0], DataRecord)}
     for j in dev.joints:
-        assert rot.angle(state.components[j].rotation, last[j].rotation) < HALF_DEGREE
+        c = state.components[j]
+        assert rot.angle(c.rotation, last[j].rotation) < HALF_DEGREE or (j, c.raw) in chance_raw
     link = state.link
-    assert link.frames == len(intact) and 0.7 * len(damaged) <= link.corrupt <= 1.3 * len(damaged)
+    assert link.frames == len(intact) + sum(chance.values()) - sum(lost.values())
+    assert 0.7 * len(damaged) <= link.corrupt <= 1.3 * len(damaged)
     assert link.short > 0 and link.oversize > 0 and link.echoes == 0
+
     # Mapping to a bone: calibrated at the state seen mid-run, a binding returns the simulated rotation
-    # relative to the calibration reading.
-    j = dev.joints[3]
+    # relative to the calibration reading (of the fourth joint, or the next whose readings were all sent).
+    def reading(j, state):
+        return next(
+            (s for s in data if s.record.creator == j and s.record.raw == state.components[j].raw), None
+        )
+
+    j = next(j for j in dev.joints[3:] + dev.joints[:3] if reading(j, mid) and reading(j, state))
     binding = JointBinding(j, bone=0, rest=mid.components[j].rotation)
-    calibrated = next(s for s in data if s.record.raw == mid.components[j].raw and s.record.creator == j)
-    expect = rot.multiply(rot.conjugate(calibrated.rotation), last[j].rotation)
+    expect = rot.multiply(rot.conjugate(reading(j, mid).rotation), last[j].rotation)
     assert rot.angle(binding.bone_rotation(state.components[j].rotation), expect) < HALF_DEGREE
 
 
@@ -139,8 +178,7 @@ def test_an_echoing_adapter(simulator):
     sim = simulator(dev, motion=RandomMotion(len(dev.joints), seed=2), seed=3, echo=True)
     with SerialReader(sim.path) as reader:
         sim.start()
-        state = reader.wait_for(lambda s: len(s.attached) == len(dev) and s.link.polls > 50, timeout=5)
-        assert state is not None
+        until(reader, lambda s: len(s.attached) == len(dev) and s.link.polls > 50, "50 polls")
         drain(reader, sim)
         link = reader.state().link
     # Every poll echoed back and skipped (but those after the device stopped); every record read.
@@ -154,38 +192,46 @@ def test_topology_follows_power_loss_and_replugging_with_a_short_timeout(simulat
     everything = {p.id for p in dev}
     with SerialReader(sim.path, timeout=0.5) as reader:
         sim.start()
-        assert reader.wait_for(lambda s: len(s.attached) == len(dev), timeout=5)
+        until(reader, lambda s: set(s.attached) == everything, "the whole device")
         subtree = set(dev.subtree(J + 20))
         sim.set_power(J + 20, False)
-        gone = reader.wait_for(lambda s: not subtree & set(s.attached), timeout=3)
-        assert gone is not None and set(gone.attached) == everything - subtree
+        # The subtree goes, the rest stays (with a timeout this short, a reader held up for half a second
+        # on a busy machine may briefly see more pieces silent: so wait for this picture, not the first
+        # state without the subtree).
+        until(reader, lambda s: set(s.attached) == everything - subtree, "the device without the subtree")
         sim.set_power(J + 20, True)
-        back = reader.wait_for(lambda s: set(s.attached) == everything, timeout=3)
-        assert back is not None
+        until(reader, lambda s: set(s.attached) == everything, "the subtree back")
         sim.move(J + 32, J + 11, 0)  # the cross's middle joint below joint 11...
         sim.move(J + 11, J + 30, 1)  # ...and joint 11 (with it) from under joint 10 into that slot
-        moved = reader.wait_for(
+        moved = until(
+            reader,
             lambda s: (
                 s.children.get(J + 30) == (J + 31, J + 11, J + 33) and s.children.get(J + 11) == (J + 32,)
             ),
-            timeout=3,
+            "joint 11 under the cross, with joint 32 below it",
         )
-        assert moved is not None and moved.components[J + 11].slot == 1 and moved.children.get(J + 10) is None
+        assert moved.components[J + 11].slot == 1 and moved.children.get(J + 10) is None
 
 
 def test_the_default_rule_detaches_a_silent_subtree_after_two_seconds(simulator):
     dev = device(1)
     sim = simulator(dev, seed=4)
+    below = set(dev.subtree(J + 2)) - {J + 2}
     with SerialReader(sim.path) as reader:
         sim.start()
-        assert reader.wait_for(lambda s: len(s.attached) == len(dev), timeout=5)
+        until(reader, lambda s: len(s.attached) == len(dev), "the whole device")
         sim.set_power(J + 2, False)  # the T splitter: everything below joint 1
-        early = reader.wait_for(lambda s: s.time - s.components[J + 2].last_heard > 1.9, timeout=3)
-        assert early is not None and set(early.attached) == {p.id for p in dev}
-        gone = reader.wait_for(lambda s: s.attached == (J + 1,), timeout=3)
-        assert gone is not None
-        # The splitter's silence takes its whole subtree with it (children reach the host through it).
-        assert 2.0 <= gone.time - gone.components[J + 2].last_heard < 2.25
+        seen = []  # every state the wait looks at: at each update of the reader, and every 20 ms
+        gone = until(reader, lambda s: seen.append(s) or s.attached == (J + 1,), "joint 1 alone")
+    # By the reader's own clock, in every state it published: the splitter is attached exactly while it
+    # was heard within 2 s (and its parent is), and its silence takes its whole subtree with it (children
+    # reach the host through it). So nothing went before its 2 s, however late the wait looked.
+    assert len(seen) > 1
+    for s in seen:
+        splitter = s.components[J + 2]
+        assert splitter.attached == (s.components[J + 1].attached and s.time - splitter.last_heard <= 2.0)
+        assert splitter.attached or not any(s.components[c].attached for c in below)
+    assert gone.time - gone.components[J + 2].last_heard > 2.0
 
 
 def test_the_reader_survives_unplugging_and_replugging_the_port(tmp_path, simulator):
@@ -194,22 +240,50 @@ def test_the_reader_survives_unplugging_and_replugging_the_port(tmp_path, simula
     sim = simulator(dev, motion=RandomMotion(len(dev.joints), seed=1), seed=5, link=link)
     with SerialReader(sim.path, timeout=0.5, backoff=(0.02, 0.2)) as reader:
         sim.start()
-        assert reader.wait_for(lambda s: len(s.attached) == len(dev), timeout=5)
+        until(reader, lambda s: len(s.attached) == len(dev), "the whole device")
         sim.unplug()
-        lost = reader.wait_for(lambda s: not s.connected, timeout=3)
-        assert lost is not None and lost.link.error
-        assert reader.wait_for(lambda s: not s.attached, timeout=3)  # silent: all detached after 0.5 s
-        frozen = reader.state().components[J + 1].angles
+        lost = until(reader, lambda s: not s.connected, "the port to fail")
+        assert lost.link.error
+        until(reader, lambda s: not s.attached, "every piece detached")  # silent for 0.5 s
+        frozen = reader.state().components[J + 1]
         sim.replug()
-        back = reader.wait_for(lambda s: s.connected and len(s.attached) == len(dev), timeout=5)
-        assert back is not None and back.link.reconnects == 1 and back.link.error == ""
-        assert not np.array_equal(back.components[J + 1].angles, frozen)  # live again
+        back = until(
+            reader,
+            lambda s: (
+                s.connected
+                and len(s.attached) == len(dev)
+                and s.components[J + 1].data_time > frozen.data_time
+            ),
+            "the device back, with new readings",
+        )
+        assert back.link.reconnects == 1 and back.link.error == ""
+        assert not np.array_equal(back.components[J + 1].angles, frozen.angles)  # live again
         # Twice more, to be sure the reconnect loop is not a one-off.
         for k in (2, 3):
             sim.unplug()
-            assert reader.wait_for(lambda s: not s.connected, timeout=3)
+            until(reader, lambda s: not s.connected, "the port to fail")
             sim.replug()
-            assert reader.wait_for(lambda s, k=k: s.connected and s.link.reconnects == k, timeout=5)
+            until(reader, lambda s, k=k: s.connected and s.link.reconnects == k, f"reconnect {k}")
+
+
+def deliver(reader, commands, done, what: str):
+    """Send ``commands()`` until ``done(state)`` holds; returns that state and how many commands went.
+
+    The firmware drops a command now and then: a piece ignores a poll, and the command in it, while it
+    writes its flash or still answers the last poll (which is what a simulator in this busy process sees
+    when it reads two polls at once). The reader does not send again by itself: so after each
+    :data:`RESEND` polls without ``done``, ``commands()`` says what to send again (sending a command a
+    second time does no harm here)."""
+    sent, give_up = 0, time.monotonic() + WAIT
+    while True:
+        polls = reader.state().link.polls
+        for command in commands():
+            reader.send(command)
+            sent += 1
+        state = until(reader, lambda s, polls=polls: done(s) or s.link.polls >= polls + RESEND, what)
+        if done(state):
+            return state, sent
+        assert time.monotonic() < give_up, f"sent {sent} commands in {WAIT:g} s, and still no {what}"
 
 
 def test_downlink_commands_reach_the_right_piece(simulator):
@@ -217,30 +291,50 @@ def test_downlink_commands_reach_the_right_piece(simulator):
     still = joint_rotation(np.tile([0.1, 0.3, -0.2, 0.5], (len(dev.joints), 1)))
     sim = simulator(dev, motion=lambda t: still, seed=6)
     target = J + 21
-    with SerialReader(sim.path) as reader:
+    acks = []  # every acknowledgement the reader published, in order
+
+    def observe(record, _time):
+        if isinstance(record, AckRecord):
+            acks.append(record)
+
+    with SerialReader(sim.path, observer=observe) as reader:
         sim.start()
-        assert reader.wait_for(lambda s: len(s.attached) == len(dev), timeout=5)
-        reader.send(Command.led(red=False, green=True, blue=False, target=target))
-        reader.send(Command.zero(target=target))
-        acked = reader.wait_for(lambda s: s.components[target].acks == 2, timeout=3)
-        assert acked is not None and acked.link.commands == 2
+        until(reader, lambda s: len(s.attached) == len(dev), "the whole device")
+        # Two commands queued at once go out one per poll, and the target acknowledges each.
+        both = [Command.led(red=False, green=True, blue=False, target=target), Command.zero(target=target)]
+
+        def unacknowledged():
+            done = {a.command for a in acks if a.creator == target}
+            return [c for c in both if c.encode()[:8] not in done]
+
+        acked, sent = deliver(
+            reader, unacknowledged, lambda s: not unacknowledged(), "acknowledgement of both"
+        )
+        assert sent >= 2 and acked.components[target].acks >= 2
+        until(reader, lambda s: s.link.commands == sent, f"the reader to count the {sent} commands sent")
+        # Only the target executed them (each perhaps more than once).
+        assert {(a.creator, a.command) for a in acks} == {(target, c.encode()[:8]) for c in both}
         assert sim.firmware(target).leds[1] and not any(
             sim.firmware(j).leds[1] for j in dev.joints if j != target
         )
-        zeroed = reader.wait_for(lambda s: np.abs(s.components[target].angles[:3]).max() < 2e-3, timeout=3)
-        assert zeroed is not None
-        assert np.abs(zeroed.components[J + 20].angles[1:3]).min() > 0.1  # the others are not
-        reader.send(Command.set_id(J + 99))  # direct: the piece plugged into the host
-        renamed = reader.wait_for(
-            lambda s: J + 99 in s.attached and s.children.get(J + 99) == (J + 2,), timeout=3
+        zeroed = until(
+            reader, lambda s: np.abs(s.components[target].angles[:3]).max() < 2e-3, "zero readings"
         )
-        assert renamed is not None and sim.firmware(J + 1).id == J + 99
+        assert np.abs(zeroed.components[J + 20].angles[1:3]).min() > 0.1  # the others are not
+        # Direct: the piece plugged into the host takes the id.
+        deliver(
+            reader,
+            lambda: [Command.set_id(J + 99)],
+            lambda s: J + 99 in s.attached and s.children.get(J + 99) == (J + 2,),
+            "new id",
+        )
+        assert sim.firmware(J + 1).id == J + 99
 
 
 def test_a_loop_url_hears_only_its_own_polls():
     with SerialReader("loop://") as reader:
-        state = reader.wait_for(lambda s: s.link.polls > 10, timeout=3)
-        assert state is not None and state.components == {}
+        state = until(reader, lambda s: s.link.polls > 10, "ten polls")
+        assert state.components == {}
         assert state.link.echoes >= state.link.polls - 2 and state.link.missing >= state.link.polls - 2
 
 
@@ -272,10 +366,10 @@ def test_socket_url(simulator):
         feeder.start()
         try:
             with SerialReader(f"socket://{host}:{port}", timeout=5.0) as reader:
-                state = reader.wait_for(
-                    lambda s: len(s.attached) == len(dev) and s.link.frames > 100, timeout=5
+                state = until(
+                    reader, lambda s: len(s.attached) == len(dev) and s.link.frames > 100, "100 records"
                 )
-                assert state is not None and state.link.corrupt == 0
+                assert state.link.corrupt == 0
         finally:
             stop.set()
             feeder.join()
