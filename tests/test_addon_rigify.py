@@ -165,6 +165,7 @@ def test_with_the_arm_in_ik_the_hand_control_moves_the_wrist(rigify_blend, tmp_p
     assert max(out["stub"]) < 0.03  # the forearm stub differs by where the IK arm really goes
 
 
+@pytest.mark.slow
 def test_poses_are_recovered_through_the_controls(rigify_blend, tmp_path):
     """Pose recovery: targets are the hand's own palm-side points at a random pose of its controls; from
     rest, the contacts land within 2 mm on Blender's evaluated mesh in at least 90% of 20 seeded cases, and

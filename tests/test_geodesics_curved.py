@@ -152,6 +152,7 @@ def test_coarse_and_fine_samplings_of_one_plane_agree_exactly():
     np.testing.assert_allclose(ends_c, ends_f, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_coarse_and_fine_spheres_agree_up_to_discretization():
     coarse, fine = icosphere(2), icosphere(7)
     assert coarse.n_faces < 400 and fine.n_faces >= 100_000
