@@ -267,7 +267,7 @@ def _demo(args: argparse.Namespace) -> int:
     missed = [name for name in result.painted if name not in result.touching]
     touching = f"{len(result.touching)}, not {', '.join(missed)}" if missed else f"all {len(result.painted)}"
     print(f"  pads touching the mug after the solve: {touching}")
-    print(f"  deepest point of the hand inside the mug: {1e3 * result.deepest:.2f} mm")
+    print(f"  deepest vertex of the hand inside the mug: {1e3 * result.deepest:.2f} mm")
     print(f"  solve: {result.summary}")
     print(f"  scene:    {result.blend}")
     print(f"  contacts: {result.contacts_file}")

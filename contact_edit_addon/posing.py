@@ -205,7 +205,8 @@ class Touch:
     ``gaps`` holds each paired hand patch's closest contact distance to its target (scene units),
     ``touching`` the patches whose gap is within ``tolerance``; ``deepest`` is how far the deepest
     vertex of the hand's skin is inside the object (0 when none is; None for an open object, which
-    has no inside).
+    has no inside). Between vertices a face can cut a sharp edge of the object (a mug's rim) a little
+    deeper.
     """
 
     gaps: dict[str, float]
@@ -251,7 +252,7 @@ def summary(scene: bpy.types.Scene, problem: Problem, result: SolveResult, outco
     ]
     if met.deepest is not None:
         clauses.append(
-            f"deepest point {length_text(scene, met.deepest)} inside '{problem.target}'"
+            f"deepest vertex {length_text(scene, met.deepest)} inside '{problem.target}'"
             if met.deepest > 0
             else f"no skin inside '{problem.target}'"
         )

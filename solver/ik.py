@@ -25,7 +25,9 @@ demo's grasp, ``contact-edit demo``, started with the palm 0.5 to 4 mm off the m
 deepest skin ended up to 3.2 mm inside, at 1000 up to 2.5 mm, at 3000 at most 0.07 mm, in about twice
 the evaluations.) Only skin within :data:`KEEP_OUT_BAND` of the surface is seen, which keeps the term
 cheap; skin that contacts pull right through a thin wall (into a mug's hollow) is not pushed back, so
-measure the result (the add-on's solve reports the deepest vertex).
+measure the result (the add-on's solve reports the deepest vertex). The term sees vertices: between
+them a face can cut a sharp edge of the object a little deeper (the demo's thumb, 0.8 mm at the
+mug's rim, where no vertex is 0.1 mm in).
 
 **Squared or plain distances.** Contact Edit's Eq. 2 squares the contact distances; the retargeting
 paper's Eq. 4-5 sum plain L2 distances (Γ_MD, Γ_CD). ``norm="l2"`` gives the latter for the contact and
