@@ -34,7 +34,9 @@ class Problem:
 
     ``pairs`` lists the (hand patch, object patch) names whose points were paired, ``sizes`` how many
     contacts each pair has (in the order of ``ik``'s points); ``free`` the DOFs the stage lets change;
-    ``world_scale`` converts armature-space lengths into scene units; ``target`` names the object.
+    ``world_scale`` converts armature-space lengths into scene units; ``target`` names the object and
+    ``solid`` is its signed distance in armature space (None if it has no inside; see
+    :func:`object_solid`), kept out of when λo > 0 and always measured.
     """
 
     posed: bridge.PosedHand
@@ -45,6 +47,7 @@ class Problem:
     sizes: tuple[int, ...]
     world_scale: float
     target: str
+    solid: MeshSDF | None
 
     def apply(self, theta, frame: int | None = None) -> None:
         bridge.apply_pose(self.posed, theta, frame)
@@ -116,7 +119,8 @@ def problem(scene: bpy.types.Scene, stage: str = "ALL") -> Problem:
         d=settings.weight_distance, n=settings.weight_normal, p=settings.weight_prior,
         o=settings.weight_penetration,
     )  # fmt: skip
-    keep_out = object_solid(object_set.mesh, M) if settings.weight_penetration > 0 else None
+    solid = object_solid(object_set.mesh, M)
+    keep_out = solid if settings.weight_penetration > 0 else None
     ik = ContactIK(posed.skin, hand_points, positions, normals, weights, keep_out=keep_out)
     armature = posed.armature_object()
     return Problem(
@@ -128,6 +132,7 @@ def problem(scene: bpy.types.Scene, stage: str = "ALL") -> Problem:
         sizes=tuple(len(hand_set[h]) for h, _ in pairs),
         world_scale=bridge.uniform_scale(armature),
         target=target.name,
+        solid=solid,
     )
 
 
@@ -226,8 +231,8 @@ def touch(problem: Problem, theta) -> Touch:
     }
     tolerance = TOUCH_DISTANCE * problem.ik.unit * scale
     deepest = None
-    if problem.ik.keep_out is not None:
-        inside = problem.ik.keep_out(problem.ik.hand.posed_vertices(theta))
+    if problem.solid is not None:
+        inside = problem.solid(problem.ik.hand.posed_vertices(theta))
         deepest = max(0.0, -float(inside.min())) * scale
     return Touch(gaps, tuple(h for h, gap in gaps.items() if gap <= tolerance), tolerance, deepest)
 

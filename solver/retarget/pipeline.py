@@ -560,7 +560,10 @@ def _misfit_warning(ratio: float, n: int, final, valid: np.ndarray, log: RefineL
             f"({refinement_outcome(log)}) left {100 * masked / valid.size:.0f}% of the samples out of the "
             "fit, so the spline bridges them"
         )
-    return text + "; a motion this fast needs more frames per second (or --control to set the count)"
+    return text + (
+        "; a motion this fast needs more frames per second (or set the count: RetargetOptions.n_control, "
+        "contact-edit retarget --control)"
+    )
 
 
 @dataclass(frozen=True)
