@@ -174,8 +174,7 @@ def _bench(args: argparse.Namespace) -> int:
 
     runs = f"median of {args.repeat} runs after {benchmark.WARMUP} untimed ones"
     if args.target == "rigs":
-        if importlib.util.find_spec("bpy") is None:
-            _needs_blender()
+        if _blender() is None:
             return 2
         from . import rig_benchmark
 
@@ -234,20 +233,16 @@ def _build_extension(args: argparse.Namespace) -> int:
     return 0
 
 
-def _needs_blender() -> None:
-    print(
-        "contact-edit: this command needs Blender's Python module (bpy 5.0.1, Python 3.11); install it "
-        'with pip install "contact-edit[blender]"',
-        file=sys.stderr,
-    )
-
-
 def _blender():
     """Import bpy and register the add-on's classes in it (a script's Blender, not an installed one)."""
     try:
         import bpy  # noqa: F401
     except ImportError:
-        _needs_blender()
+        print(
+            "contact-edit: this command needs Blender's Python module (bpy 5.0.1, Python 3.11); install it "
+            'with pip install "contact-edit[blender]"',
+            file=sys.stderr,
+        )
         return None
     import contact_edit_addon
 
@@ -393,7 +388,6 @@ def _retarget(args: argparse.Namespace) -> int:
     from solver import SolverError
     from solver.retarget import annotations, pipeline, synthetic
     from solver.retarget.frames import HandSpec, RetargetWeights
-    from solver.retarget.metrics import plot_metrics
     from solver.retarget.motion import Motion
 
     out = Path(args.output)
@@ -422,14 +416,7 @@ def _retarget(args: argparse.Namespace) -> int:
         )  # fmt: skip
     title = f"{Path(args.motion).name}: {motion.n_frames} frames onto {args.target} (scale {args.scale:g})"
     plot = not args.no_plot and importlib.util.find_spec("matplotlib") is not None
-    paths = pipeline.save_result(result, out, annotation, plot=False, rig=target.build().rig)
-    if plot:  # here rather than in save_result, to give the plot its title
-        counts = None if result.transferred is None else result.transferred.hand_contacts.count()
-        paths["plot"] = plot_metrics(
-            out / "metrics.png", result.motion.fps, marker_distance=result.marker_distance,
-            contact_distance=result.contact_distance, contact_count=counts,
-            intersections=result.intersections, title=title,
-        )  # fmt: skip
+    paths = pipeline.save_result(result, out, annotation, plot=plot, rig=target.build().rig, title=title)
     summary = result.summary()
     length = target.build().length
     print(f"contact-edit retarget: {motion.n_frames} frames onto {args.target} (scale {args.scale})")

@@ -84,6 +84,25 @@ def test_running_again_resumes_without_solving(retargeted):
     assert changed == ["000007.npz"]  # only the missing frame was solved
 
 
+def test_the_plot_gets_the_commands_title(retargeted, motion_file, monkeypatch):
+    """metrics.png is drawn by save_result with the title the command gives it (a resumed run)."""
+    pytest.importorskip("matplotlib")
+    from solver.retarget import metrics
+
+    out, args = retargeted
+    plotted = {}
+
+    def plot_metrics(path, fps, **kwargs):
+        plotted.update(kwargs, path=path, fps=fps)
+        return path
+
+    monkeypatch.setattr(metrics, "plot_metrics", plot_metrics)
+    assert main([*args, "--no-refine", "--control", "8"]) == 0
+    assert plotted["title"] == f"{motion_file.name}: 44 frames onto alien (scale 1)"
+    assert plotted["path"] == out / "metrics.png" and plotted["fps"] == 120.0
+    assert len(plotted["contact_count"]) == 44
+
+
 def test_weights_reach_the_solves(retargeted, capsys):
     out, args = retargeted
     stored = {p: p.stat().st_mtime_ns for p in (out / "frames").rglob("*.npz")}

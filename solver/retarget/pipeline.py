@@ -600,6 +600,7 @@ def save_result(
     annotation: HandPairAnnotation | None = None,
     plot: bool = True,
     rig: Rig | None = None,
+    title: str | None = None,
 ):
     """Write a retarget's outputs into ``folder`` (each file atomically) and return their paths.
 
@@ -610,7 +611,7 @@ def save_result(
     and intersection volumes, each baseline's final curves as ``<name>_theta``),
     ``summary.json`` (:meth:`Retarget.summary`), ``table1.txt`` (the baseline comparison, when the
     baselines ran), ``annotation.json`` (the hand pair's annotation, when given) and ``metrics.png`` (the
-    §4.2 plots).
+    §4.2 plots, under ``title``: :func:`.metrics.plot_metrics`'s default when None).
     """
     from .metrics import plot_metrics
 
@@ -663,6 +664,6 @@ def save_result(
         paths["plot"] = plot_metrics(
             folder / "metrics.png", result.motion.fps, marker_distance=result.marker_distance,
             contact_distance=result.contact_distance, contact_count=counts,
-            intersections=result.intersections,
+            intersections=result.intersections, title=title,
         )  # fmt: skip
     return paths
