@@ -89,7 +89,7 @@ MAX_EVALUATIONS = 2000
 NORMS = ("squared", "l2")
 #: Smoothing δ of the L2 norm at zero, in units of u (0.5 mm on a life-size hand).
 L2_SMOOTHING = 0.05
-#: The λo the add-on and :func:`solver.grasp`-style callers use when keeping the hand out of the object:
+#: The default λo (:attr:`Weights.o`), used whenever a hand is kept out of an object (``keep_out``):
 #: 1 mm (0.1 u) inside weighs 3000 · 0.01 = 30, as thirty contacts 1 cm off do (λd = 1).
 KEEP_OUT_WEIGHT = 3000.0
 #: The keep-out term sees skin within this many units u of the object's surface (5 mm on a life-size
