@@ -21,6 +21,7 @@ from .tangent import arrival_to_basis, face_to_vertex, to_face_frame, vertex_to_
 
 #: A ray passing within this barycentric distance of a vertex goes through the vertex.
 VERTEX_SNAP = 1e-11
+_CORNERS = np.arange(3)[:, None]
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,7 +80,6 @@ def exp_map(mesh: TriMesh, origins: SurfacePoints, z) -> Trace:
     if not np.all(np.isfinite(z)):
         raise MeshError("tangent vectors contain NaN or infinite values")
     origins.validate(mesh)
-    k = z.size
     length = np.abs(z)
     unit = np.where(length > 0, z / np.where(length > 0, length, 1), 0)
 
@@ -92,101 +92,145 @@ def exp_map(mesh: TriMesh, origins: SurfacePoints, z) -> Trace:
         local = np.argmax(mesh.faces[faces[at_vertex]] == v0[at_vertex, None], axis=1)
         bary[np.flatnonzero(at_vertex), local] = 1
 
-    end_face, end_bary, end_dir = faces.copy(), bary.copy(), d.copy()
-    stopped = np.zeros(k, bool)
-    travelled = length.copy()
-
-    # Ray state, one column per live ray: face, barycentric coordinates (3, n), direction in the face
-    # frame, length left, and the corner opposite the edge it came in through (-1: none).
-    ray = np.flatnonzero(length > 0)
-    face, B, dirn = faces[ray], np.ascontiguousarray(bary[ray].T), d[ray]
-    remaining = length[ray]
-    entry = np.full(ray.size, -1)
-    GX, GY, TOL = _face_gradients(mesh)
-    twin, rot = mesh.twin, mesh.halfedge_rotation
-    corners = np.arange(3)[:, None]
-    all_lanes = np.arange(ray.size)
+    walk = _Walk(mesh, faces, bary, d, length)
     limit = 4 * mesh.n_faces + 100
     for _ in range(limit):
-        if ray.size == 0:
+        if walk.ray.size == 0:
             break
+        walk.step()
+    else:
+        raise GeodesicError(f"geodesic tracing did not finish within {limit} steps (the mesh may be corrupt)")
+    return _finish(
+        mesh, walk.end_face, walk.end_bary, walk.end_dir, unit, length, walk.stopped, walk.travelled
+    )
+
+
+class _Walk:
+    """Rays walking across faces, one face per :meth:`step`, and where each ray ended.
+
+    The live rays' state, one entry (column of ``B``) per ray still walking: ``ray`` (n,) its index
+    among the k rays, ``face`` (n,), barycentric coordinates ``B`` (3, n), direction ``dirn`` (n,) in
+    the face frame, length left ``remaining`` (n,) and ``entry`` (n,), the corner opposite the edge it
+    came in through (-1: none, it starts inside the face, on an edge or at a vertex).
+    The ends, per ray (k,): ``end_face``, ``end_bary`` (k, 3), ``end_dir`` (in the end face's frame),
+    ``stopped`` (the boundary stopped it short) and ``travelled``.
+    """
+
+    def __init__(self, mesh: TriMesh, faces, bary, d, length):
+        self.mesh = mesh
+        self.GX, self.GY, self.TOL = _face_gradients(mesh)
+        self.end_face, self.end_bary, self.end_dir = faces.copy(), bary.copy(), d.copy()
+        self.stopped = np.zeros(len(faces), bool)
+        self.travelled = length.copy()
+        self.ray = np.flatnonzero(length > 0)
+        self.face, self.B, self.dirn = faces[self.ray], np.ascontiguousarray(bary[self.ray].T), d[self.ray]
+        self.remaining = length[self.ray]
+        self.entry = np.full(self.ray.size, -1)
+        self.lanes = np.arange(self.ray.size)  # 0 … n-1, sliced to the live count
+
+    def step(self) -> None:
+        """Move every live ray to where it leaves its face. A ray whose length ends inside the face ends
+        there; one that reaches the boundary stops on it; one that reaches a vertex goes straight on
+        through it (:func:`_through_vertex`); the others cross the edge into the next face."""
+        db, t_exit, j = self._exits()
+        done = self.remaining <= t_exit
+        if np.any(done):
+            lanes = np.flatnonzero(done)
+            ends = (self.B[:, lanes] + self.remaining[lanes] * db[:, lanes]).T
+            self._end(lanes, self.face[lanes], ends, self.dirn[lanes])
+        # The exit edge runs from corner j1 to corner j2.
+        lanes = self.lanes[: self.ray.size]
+        j1, j2 = (j + 1) % 3, (j + 2) % 3
+        with np.errstate(invalid="ignore"):
+            exit_b = self.B + t_exit * db
+        b1 = np.maximum(exit_b[j1, lanes], 0.0)
+        b2 = np.maximum(exit_b[j2, lanes], 0.0)
+        self.remaining = self.remaining - t_exit
+        h = 3 * self.face + j1
+        twin = self.mesh.twin[h]
+        near_vertex = (np.minimum(b1, b2) < VERTEX_SNAP) & ~done
+        boundary = (twin < 0) & ~near_vertex & ~done
+        if np.any(boundary):
+            self._stop_on_edge(np.flatnonzero(boundary), j1, j2, b1, b2)
+        through = self._through_vertices(np.flatnonzero(near_vertex), np.where(b1 >= b2, j1, j2))
+        if np.any(done | near_vertex | boundary):
+            go = np.flatnonzero(~(done | near_vertex | boundary))
+            h, twin, b1, b2 = h[go], twin[go], b1[go], b2[go]
+            self.ray, self.dirn, self.remaining = self.ray[go], self.dirn[go], self.remaining[go]
+        self._cross(h, twin, b1, b2)
+        if through is not None:
+            self._join(*through)
+
+    def _exits(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For each live ray, the rates of change of its coordinates along its direction ``db`` (3, n),
+        the distance to where it leaves its face ``t_exit`` (n,), and the corner ``j`` (n,) whose
+        coordinate reaches 0 there (the exit edge is opposite it)."""
+        face, dirn, entry = self.face, self.dirn, self.entry
         dx, dy = dirn.real.copy(), dirn.imag.copy()
-        db = np.take(GX, face, axis=1) * dx + np.take(GY, face, axis=1) * dy
-        leaving = (db < 0) & (corners != entry)
+        db = np.take(self.GX, face, axis=1) * dx + np.take(self.GY, face, axis=1) * dy
+        leaving = (db < 0) & (entry != _CORNERS)
         anchored = np.flatnonzero(entry < 0)
         if anchored.size:  # a ray leaving a vertex or edge may run along an edge: not an exit
-            leaving[:, anchored] &= db[:, anchored] < -np.take(TOL, face[anchored], axis=1)
+            leaving[:, anchored] &= db[:, anchored] < -np.take(self.TOL, face[anchored], axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(leaving, -B / db, np.inf)
+            t = np.where(leaving, -self.B / db, np.inf)
         np.maximum(t, 0.0, out=t)
         t01 = np.minimum(t[0], t[1])
         t_exit = np.minimum(t01, t[2])
-        j = np.where(t[2] < t01, 2, np.where(t[1] < t[0], 1, 0))  # the corner whose coordinate hits 0
+        j = np.where(t[2] < t01, 2, np.where(t[1] < t[0], 1, 0))
+        return db, t_exit, j
 
-        done = remaining <= t_exit
-        if np.any(done):
-            d_lanes = np.flatnonzero(done)
-            idx = ray[d_lanes]
-            end_face[idx] = face[d_lanes]
-            end_bary[idx] = (B[:, d_lanes] + remaining[d_lanes] * db[:, d_lanes]).T
-            end_dir[idx] = dirn[d_lanes]
-        # Move to the exit edge, which runs from corner j1 to corner j2.
-        lanes = all_lanes[: ray.size]
-        j1, j2 = (j + 1) % 3, (j + 2) % 3
-        with np.errstate(invalid="ignore"):
-            exit_b = B + t_exit * db
-        b1 = np.maximum(exit_b[j1, lanes], 0.0)
-        b2 = np.maximum(exit_b[j2, lanes], 0.0)
-        remaining = remaining - t_exit
-        h = 3 * face + j1
-        tw = twin[h]
-        near_vertex = (np.minimum(b1, b2) < VERTEX_SNAP) & ~done
-        boundary = (tw < 0) & ~near_vertex & ~done
-        special = near_vertex | boundary
-        any_special = np.any(special)
-        if any_special:
-            if np.any(boundary):
-                bl = np.flatnonzero(boundary)
-                idx = ray[bl]
-                eb = np.zeros((idx.size, 3))
-                eb[np.arange(idx.size), j1[bl]] = b1[bl]
-                eb[np.arange(idx.size), j2[bl]] = b2[bl]
-                end_face[idx], end_bary[idx], end_dir[idx] = face[bl], eb, dirn[bl]
-                stopped[idx] = True
-                travelled[idx] -= remaining[bl]
-            corner_rays = np.flatnonzero(near_vertex)
-            vv = np.where(b1 >= b2, j1, j2)[corner_rays]
-            vf, vd, vb, vstop = _through_vertex(mesh, face[corner_rays], vv, dirn[corner_rays])
-            idx = ray[corner_rays]
-            if np.any(vstop):
-                s = idx[vstop]
-                end_face[s], end_bary[s], end_dir[s] = vf[vstop], vb[vstop], vd[vstop]
-                stopped[s] = True
-                travelled[s] -= remaining[corner_rays][vstop]
-            keep = ~vstop
-            corner_remaining = remaining[corner_rays][keep]
-        if any_special or np.any(done):
-            go = np.flatnonzero(~(done | special))
-            ray, tw, h, b1, b2 = ray[go], tw[go], h[go], b1[go], b2[go]
-            dirn, remaining = dirn[go], remaining[go]
-        # Across the edge: the same two coordinates (the twin runs the other way), the direction rotated.
-        jj = tw % 3
-        lanes = all_lanes[: ray.size]
-        B = np.zeros((3, ray.size))
-        B[jj, lanes] = b2
-        B[(jj + 1) % 3, lanes] = b1
-        face, dirn, entry = tw // 3, dirn * rot[h], (jj + 2) % 3
-        if any_special:
-            ray = np.concatenate([ray, idx[keep]])
-            face = np.concatenate([face, vf[keep]])
-            B = np.concatenate([B, vb[keep].T], axis=1)
-            dirn = np.concatenate([dirn, vd[keep]])
-            remaining = np.concatenate([remaining, corner_remaining])
-            entry = np.concatenate([entry, np.full(corner_remaining.size, -1)])
-    else:
-        raise GeodesicError(f"geodesic tracing did not finish within {limit} steps (the mesh may be corrupt)")
+    def _end(self, lanes, faces, bary, d) -> None:
+        """Record where the live rays ``lanes`` end: faces, coordinates (len(lanes), 3), directions."""
+        idx = self.ray[lanes]
+        self.end_face[idx], self.end_bary[idx], self.end_dir[idx] = faces, bary, d
 
-    return _finish(mesh, end_face, end_bary, end_dir, unit, length, stopped, travelled)
+    def _stop_on_edge(self, lanes, j1, j2, b1, b2) -> None:
+        """Stop the live rays ``lanes`` where they reach the boundary edge from corner j1 to j2 (at
+        coordinates b1, b2), short of their length."""
+        at = np.zeros((lanes.size, 3))
+        at[np.arange(lanes.size), j1[lanes]] = b1[lanes]
+        at[np.arange(lanes.size), j2[lanes]] = b2[lanes]
+        self._end(lanes, self.face[lanes], at, self.dirn[lanes])
+        idx = self.ray[lanes]
+        self.stopped[idx] = True
+        self.travelled[idx] -= self.remaining[lanes]
+
+    def _through_vertices(self, lanes, corner):
+        """Rays ``lanes`` reached their face's ``corner[lanes]``: those at a boundary vertex stop there;
+        the state (ray, face, B (3, c), dirn, remaining) of the others, leaving the vertex straight on,
+        or None when no ray reached a vertex."""
+        if lanes.size == 0:
+            return None
+        faces, directions, bary, stop = _through_vertex(
+            self.mesh, self.face[lanes], corner[lanes], self.dirn[lanes]
+        )
+        idx, remaining = self.ray[lanes], self.remaining[lanes]
+        if np.any(stop):
+            self._end(lanes[stop], faces[stop], bary[stop], directions[stop])
+            self.stopped[idx[stop]] = True
+            self.travelled[idx[stop]] -= remaining[stop]
+        go = ~stop
+        return idx[go], faces[go], bary[go].T, directions[go], remaining[go]
+
+    def _cross(self, h, twin, b1, b2) -> None:
+        """Carry the live rays across their exit halfedges ``h`` into the ``twin`` faces: the same two
+        coordinates (the twin runs the other way), the direction rotated by the edge's unfolding."""
+        jj = twin % 3
+        lanes = self.lanes[: self.ray.size]
+        self.B = np.zeros((3, self.ray.size))
+        self.B[jj, lanes] = b2
+        self.B[(jj + 1) % 3, lanes] = b1
+        self.face, self.dirn, self.entry = twin // 3, self.dirn * self.mesh.halfedge_rotation[h], (jj + 2) % 3
+
+    def _join(self, ray, face, B, dirn, remaining) -> None:
+        """Add rays that left a vertex to the live ones (no entry edge)."""
+        self.ray = np.concatenate([self.ray, ray])
+        self.face = np.concatenate([self.face, face])
+        self.B = np.concatenate([self.B, B], axis=1)
+        self.dirn = np.concatenate([self.dirn, dirn])
+        self.remaining = np.concatenate([self.remaining, remaining])
+        self.entry = np.concatenate([self.entry, np.full(ray.size, -1)])
 
 
 def _through_vertex(mesh: TriMesh, faces, local, d):
