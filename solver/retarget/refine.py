@@ -360,20 +360,8 @@ def refine_trajectory(
         For malformed input, a DOF with no finite sample, or a ``resolve`` answer of the wrong shape.
     """
     X = np.array(theta, dtype=np.float64)
-    if X.ndim != 2:
-        raise SolverError(f"theta must have shape (F, d), got {X.shape}")
-    F, d = X.shape
-    if F == 0:
-        raise SolverError("theta has no frames")
-    rot = np.asarray(is_rotation, dtype=bool).reshape(-1)
-    if rot.size != d:
-        raise SolverError(f"is_rotation needs {d} flags (one per DOF), got {rot.size}")
-    fps = float(fps)
-    length = float(length)
-    e_acc = float(e_acc)
-    for name, v in (("fps", fps), ("length", length), ("e_acc", e_acc)):
-        if not (np.isfinite(v) and v > 0):
-            raise SolverError(f"{name} must be a positive finite number, got {v!r}")
+    rot = _checked_rotations(X, is_rotation)
+    fps, length, e_acc = _positive(fps=fps, length=length, e_acc=e_acc)
     max_iterations = int(max_iterations)
     if max_iterations < 0:
         raise SolverError(f"max_iterations must be non-negative, got {max_iterations}")
@@ -381,61 +369,26 @@ def refine_trajectory(
     if not 0 <= min_progress < 1:
         raise SolverError(f"min_progress must be in [0, 1), got {min_progress!r}")
     scale = np.where(rot, 1.0, 1.0 / length)  # DOF units -> threshold units
-
-    finite = np.isfinite(X)
-    empty = np.flatnonzero(~finite.any(0))
-    if empty.size:
-        raise SolverError(f"DOFs {describe_ids(empty)} have no finite value in any frame", dofs=empty)
-
-    # Unwrapped working copy U; `branch` holds each frame's latest solve (the solver's own 2π branch).
-    U = _ffill(X, finite)
-    U[:, rot] = np.unwrap(U[:, rot], axis=0)
-    U = interpolate_gaps(U, finite)
-    branch = np.where(finite, X, np.mod(U + np.pi, TWO_PI) - np.pi)
-    bad = ~finite
-
-    def solve(frames: np.ndarray, seeds_u: np.ndarray) -> None:
-        seeds = seeds_u.copy()
-        seeds[:, rot] -= TWO_PI * np.round((seeds_u[:, rot] - branch[frames][:, rot]) / TWO_PI)
-        out = np.asarray(resolve(frames.copy(), seeds), dtype=np.float64)
-        if out.shape != seeds.shape:
-            raise SolverError(f"resolve returned shape {out.shape} for {len(frames)} frames of {d} DOFs")
-        ok = np.isfinite(out)
-        out = np.where(ok, out, seeds)
-        branch[frames] = out
-        res = out.copy()
-        res[:, rot] += TWO_PI * np.round((seeds_u[:, rot] - out[:, rot]) / TWO_PI)
-        U[frames] = res
-        bad[frames] = ~ok
+    path = _Trajectory(X, rot, resolve)
 
     total = max_iterations + 1
-    cancelled = False
-    peaks = 0
-    prefilter_frames = np.empty(0, np.int64)
-    if prefilter and F >= 3:
-        Z = U * scale
-        H, replaced = hampel(Z, hampel_half_width, hampel_sigmas, floor=tolerance)
+    peaks, prefilter_frames = 0, np.empty(0, np.int64)
+    if prefilter and len(X) >= 3:
+        H, replaced = hampel(path.U * scale, hampel_half_width, hampel_sigmas, floor=tolerance)
         peaks = int(replaced.sum())
         L = lowpass(H, fps, cutoff, filter_order)
-        changed = (np.abs(L - Z) > tolerance) | bad
+        changed = (np.abs(L - path.U * scale) > tolerance) | path.bad
         prefilter_frames = np.flatnonzero(changed.any(1))
         if prefilter_frames.size:
-            solve(prefilter_frames, L[prefilter_frames] / scale)
-    if progress is not None and progress(1, total):
-        cancelled = True
-
-    def detect() -> tuple[np.ndarray, float]:
-        """The violating samples and their excess acceleration."""
-        over = np.abs(acceleration(U, fps) * scale) - e_acc
-        violating = (over > 0) | bad
-        return violating, float(np.sum(np.where(bad, e_acc, np.maximum(over, 0.0))))
+            path.solve(prefilter_frames, L[prefilter_frames] / scale)
+    cancelled = progress is not None and bool(progress(1, total))
 
     counts: list[int] = []
     excess: list[float] = []
     rounds: list[np.ndarray] = []
     lowest, idle = np.inf, 0
     while True:
-        violating, mass = detect()
+        violating, mass = path.violations(fps, scale, e_acc)
         counts.append(int(violating.sum()))
         excess.append(mass)
         if mass <= (1.0 - min_progress) * lowest or not rounds:
@@ -444,15 +397,15 @@ def refine_trajectory(
             idle += 1
         if not violating.any() or cancelled or len(rounds) >= max_iterations or idle >= PATIENCE:
             break
-        seeds = np.where(violating, interpolate_gaps(U, ~violating), U)
+        seeds = np.where(violating, interpolate_gaps(path.U, ~violating), path.U)
         frames = np.flatnonzero(violating.any(1))
-        solve(frames, seeds[frames])
+        path.solve(frames, seeds[frames])
         rounds.append(frames)
         if progress is not None and progress(len(rounds) + 1, total):
             cancelled = True
 
     log = RefineLog(
-        nonfinite=int((~finite).sum()),
+        nonfinite=int((~np.isfinite(X)).sum()),
         peaks=peaks,
         prefilter_frames=prefilter_frames,
         violations=tuple(counts),
@@ -463,4 +416,73 @@ def refine_trajectory(
         stalled=bool(violating.any()) and idle >= PATIENCE,
         cancelled=cancelled,
     )
-    return Refinement(U, ~violating, log)
+    return Refinement(path.U, ~violating, log)
+
+
+def _checked_rotations(X: np.ndarray, is_rotation) -> np.ndarray:
+    """(d,) bool: ``is_rotation`` checked against the trajectory X (F, d), which is checked too."""
+    if X.ndim != 2:
+        raise SolverError(f"theta must have shape (F, d), got {X.shape}")
+    F, d = X.shape
+    if F == 0:
+        raise SolverError("theta has no frames")
+    rot = np.asarray(is_rotation, dtype=bool).reshape(-1)
+    if rot.size != d:
+        raise SolverError(f"is_rotation needs {d} flags (one per DOF), got {rot.size}")
+    empty = np.flatnonzero(~np.isfinite(X).any(0))
+    if empty.size:
+        raise SolverError(f"DOFs {describe_ids(empty)} have no finite value in any frame", dofs=empty)
+    return rot
+
+
+def _positive(**values) -> tuple[float, ...]:
+    """The values as floats, each checked to be positive and finite (the error names it)."""
+    out = tuple(float(v) for v in values.values())
+    for name, v in zip(values, out, strict=True):
+        if not (np.isfinite(v) and v > 0):
+            raise SolverError(f"{name} must be a positive finite number, got {v!r}")
+    return out
+
+
+class _Trajectory:
+    """The trajectory under refinement, and its re-solves.
+
+    ``U`` (F, d) is the working copy with rotations unwrapped along time (gaps interpolated);
+    ``branch`` (F, d) each frame's latest solve on the solver's own 2π branch (seeds go to ``resolve``
+    on it, so they stay within the rig's bounds); ``bad`` (F, d) the samples no solve made finite.
+    """
+
+    def __init__(self, X: np.ndarray, rot: np.ndarray, resolve: Resolve):
+        finite = np.isfinite(X)
+        U = _ffill(X, finite)
+        U[:, rot] = np.unwrap(U[:, rot], axis=0)
+        self.U = interpolate_gaps(U, finite)
+        self.branch = np.where(finite, X, np.mod(self.U + np.pi, TWO_PI) - np.pi)
+        self.bad = ~finite
+        self.rot = rot
+        self.resolve = resolve
+
+    def solve(self, frames: np.ndarray, seeds_u: np.ndarray) -> None:
+        """Re-solve ``frames`` (k,) from unwrapped seeds (k, d); each answer is brought back to the branch
+        nearest its seed, and a non-finite one keeps its seed (and stays bad)."""
+        rot = self.rot
+        seeds = seeds_u.copy()
+        seeds[:, rot] -= TWO_PI * np.round((seeds_u[:, rot] - self.branch[frames][:, rot]) / TWO_PI)
+        out = np.asarray(self.resolve(frames.copy(), seeds), dtype=np.float64)
+        if out.shape != seeds.shape:
+            raise SolverError(
+                f"resolve returned shape {out.shape} for {len(frames)} frames of {seeds.shape[1]} DOFs"
+            )
+        ok = np.isfinite(out)
+        out = np.where(ok, out, seeds)
+        self.branch[frames] = out
+        unwrapped = out.copy()
+        unwrapped[:, rot] += TWO_PI * np.round((seeds_u[:, rot] - out[:, rot]) / TWO_PI)
+        self.U[frames] = unwrapped
+        self.bad[frames] = ~ok
+
+    def violations(self, fps: float, scale: np.ndarray, e_acc: float) -> tuple[np.ndarray, float]:
+        """The violating samples (F, d) bool and their excess acceleration (see the module docstring)."""
+        over = np.abs(acceleration(self.U, fps) * scale) - e_acc
+        violating = (over > 0) | self.bad
+        return violating, float(np.sum(np.where(self.bad, e_acc, np.maximum(over, 0.0))))

@@ -25,6 +25,11 @@ Fitting of Data with B-Spline Curves*, Geometric Tools, 2005):
   too few for their control points somewhere (Schoenberg–Whitney fails), the penalty covers all of
   them. A fit whose control points all see data is plain least squares: a cubic comes back exactly.
 
+Why not ``scipy.interpolate.make_lsq_spline`` (the tests' oracle, which this matches where both apply):
+it takes one weight vector for all columns and has no penalty, so it would need one call per distinct
+DOF mask, and where masking leaves a control point without data its system is singular (scipy 1.17
+returns NaN control values): exactly the gaps the refinement's masks make, which this fit bridges.
+
 Evaluation: :class:`SplineFit` is vectorized over DOFs (``fit(t)`` gives (len(t), d)); ``fit.values``
 holds the fit at every sample frame.
 """
