@@ -26,18 +26,28 @@ def keyed_frames(obj):
 """
 
 
+#: The ``contact-edit`` console script, run by this Python (the dev venv's, with its packages).
+CONTACT_EDIT = (sys.executable, "-c", "import sys; from contact_edit_addon.cli import main; sys.exit(main())")
+
+
+def fresh_process(args, *, user_dir: Path, cwd: Path | None = None, timeout: float = 1800):
+    """``args`` run in a fresh process (real file descriptors, output captured as text) with its own
+    Blender user folder. Output is buffered as for most users (no ``PYTHONUNBUFFERED``)."""
+    env = {**os.environ, "BLENDER_USER_RESOURCES": str(user_dir)}
+    env.pop("PYTHONUNBUFFERED", None)
+    return subprocess.run(list(args), capture_output=True, text=True, cwd=cwd, env=env, timeout=timeout)
+
+
+def contact_edit(*args: str, cwd: Path, user_dir: Path) -> subprocess.CompletedProcess:
+    """``contact-edit ARGS`` in a fresh process (:func:`fresh_process`)."""
+    return fresh_process([*CONTACT_EDIT, *args], user_dir=user_dir, cwd=cwd)
+
+
 def run_blender(script: str, user_dir: Path, setup: str = "", timeout: float = 300) -> dict:
     """Run ``setup`` then ``script`` with bpy; the script reports by calling ``result(value)``. Raises with
     the output on failure."""
-    env = {**os.environ, "BLENDER_USER_RESOURCES": str(user_dir)}
     code = PRELUDE + textwrap.dedent(setup) + textwrap.dedent(script)
-    done = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=timeout,
-    )
+    done = fresh_process([sys.executable, "-c", code], user_dir=user_dir, timeout=timeout)
     lines = [line for line in done.stdout.splitlines() if line.startswith("RESULT ")]
     if done.returncode != 0 or not lines:
         raise AssertionError(f"Blender script failed ({done.returncode}):\n{done.stdout}\n{done.stderr}")

@@ -40,7 +40,6 @@ def sharp_cone() -> TriMesh:
     return cone(base_radius=1.0, height=4.0, top_radius=0.0, n_around=16, n_along=4, jitter=0.15, seed=5)
 
 
-
 @pytest.fixture(scope="session")
 def demo(tmp_path_factory):
     """The README's first command after its install, ``.venv/bin/contact-edit demo --out demo``, run as
@@ -48,10 +47,11 @@ def demo(tmp_path_factory):
     if importlib.util.find_spec("bpy") is None:
         pytest.skip("needs bpy (the dev extra)")
     from . import readme
+    from .blender import fresh_process
 
     install, pip, line = readme.block("The two commands", "sh", 0).lines()[0].split(" && ")
     assert (install, pip) == ("python3 -m venv .venv", '.venv/bin/pip install -e ".[blender]"')
     folder = tmp_path_factory.mktemp("readme-demo")
-    done = readme.run(readme.command(line), folder, folder / "user")
+    done = fresh_process(readme.command(line), user_dir=folder / "user", cwd=folder)
     assert done.returncode == 0, done.stderr
     return folder / "demo", done.stdout

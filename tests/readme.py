@@ -10,6 +10,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from .blender import fresh_process
+
 README = Path(__file__).resolve().parent.parent / "README.md"
 #: The README's commands run from a clone holding the venv in `.venv`; the tests use this one's.
 VENV_BIN = ".venv/bin/"
@@ -59,14 +61,8 @@ def command(line: str) -> list[str]:
     return [bin_dir + w[len(VENV_BIN) :] if w.startswith(VENV_BIN) else w for w in words]
 
 
-def run(args: list[str], cwd: Path, user_dir: Path, timeout: float = 1800) -> subprocess.CompletedProcess:
-    """A command in a fresh process, with a temporary Blender user folder."""
-    env = {**os.environ, "BLENDER_USER_RESOURCES": str(user_dir)}
-    return subprocess.run(args, capture_output=True, text=True, cwd=cwd, env=env, timeout=timeout)
-
-
 def run_python(code: str, cwd: Path, user_dir: Path, timeout: float = 1800) -> subprocess.CompletedProcess:
     """A README Python block saved as a script and run as one (``python script.py``), as a reader would."""
     script = cwd / "readme_snippet.py"
     script.write_text(code, encoding="utf-8")
-    return run([sys.executable, str(script)], cwd, user_dir, timeout)
+    return fresh_process([sys.executable, str(script)], user_dir=user_dir, cwd=cwd, timeout=timeout)

@@ -4,16 +4,13 @@
 import hashlib
 import importlib.util
 import json
-import os
 import re
 import struct
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-from .blender import run_blender
+from .blender import contact_edit, run_blender
 
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("bpy") is None, reason="needs bpy (the dev extra)")
 
@@ -23,18 +20,6 @@ import numpy as np
 import contact_edit_addon
 contact_edit_addon.register()
 """
-
-
-def contact_edit(*args: str, cwd: Path, user_dir: Path) -> subprocess.CompletedProcess:
-    """The console script, as installed, in a fresh process with a temporary Blender user folder."""
-    env = {**os.environ, "BLENDER_USER_RESOURCES": str(user_dir)}
-    command = [
-        sys.executable,
-        "-c",
-        "import sys; from contact_edit_addon.cli import main; sys.exit(main())",
-        *args,
-    ]
-    return subprocess.run(command, capture_output=True, text=True, cwd=cwd, env=env, timeout=600)
 
 
 def digest(path: Path) -> str:

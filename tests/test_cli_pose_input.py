@@ -3,27 +3,17 @@ scene without a chosen hand. One line saying what is wrong with which file, exit
 written, nothing of Blender's own output, and the traceback only with --debug."""
 
 import importlib.util
-import os
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from .blender import run_blender
+from .blender import contact_edit, fresh_process, run_blender
 
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("bpy") is None, reason="needs bpy (the dev extra)")
 
 PREVIOUS = b"a previous output, to be left as it is"
-
-
-def contact_edit(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    """The console script in a fresh process (real file descriptors), with its own Blender user folder."""
-    env = {**os.environ, "BLENDER_USER_RESOURCES": str(cwd / "user")}
-    env.pop("PYTHONUNBUFFERED", None)  # Blender's C output is then buffered, as for most users
-    command = [sys.executable, "-c", "import sys; from contact_edit_addon.cli import main; sys.exit(main())"]
-    return subprocess.run([*command, *args], capture_output=True, text=True, cwd=cwd, env=env, timeout=300)
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +56,7 @@ def assert_nothing_written(folder: Path, before: set[str]) -> None:
 def test_a_file_blender_cannot_open_is_one_line_and_nothing_is_written(files, name, reason):
     (files / "out.blend").write_bytes(PREVIOUS)
     before = {p.name for p in files.iterdir()}
-    done = contact_edit("pose", f"{name}.blend", "-o", "out.blend", cwd=files)
+    done = contact_edit("pose", f"{name}.blend", "-o", "out.blend", cwd=files, user_dir=files / "user")
     assert done.returncode == 1
     assert done.stderr.splitlines() == [f"contact-edit pose: {files / name}.blend: {reason}"]
     assert done.stdout == ""  # not Blender's "Error: File format is not supported …" or "Read blend: …"
@@ -76,7 +66,9 @@ def test_a_file_blender_cannot_open_is_one_line_and_nothing_is_written(files, na
 def test_debug_shows_the_traceback_and_blenders_own_error(files):
     (files / "out.blend").write_bytes(PREVIOUS)
     before = {p.name for p in files.iterdir()}
-    done = contact_edit("--debug", "pose", "truncated.blend", "-o", "out.blend", cwd=files)
+    done = contact_edit(
+        "--debug", "pose", "truncated.blend", "-o", "out.blend", cwd=files, user_dir=files / "user"
+    )
     assert done.returncode == 1
     assert "Traceback (most recent call last):" in done.stderr
     assert "RuntimeError: Error: Loading" in done.stderr  # what Blender raised, chained
@@ -86,20 +78,31 @@ def test_debug_shows_the_traceback_and_blenders_own_error(files):
 
 
 def test_a_scene_without_a_chosen_hand_names_the_command_line_options(files):
-    done = contact_edit("pose", "tiny.blend", "-o", "posed.blend", cwd=files)
+    done = contact_edit("pose", "tiny.blend", "-o", "posed.blend", cwd=files, user_dir=files / "user")
     assert done.returncode == 1 and done.stdout == ""
     assert done.stderr.splitlines() == [
         f"contact-edit pose: {files / 'tiny.blend'}: no hand and no object chosen in the scene's Contact "
         "tab; name them with --hand NAME --object NAME (mesh objects: Ball, Cube)"
     ]
-    done = contact_edit("pose", "tiny.blend", "--hand", "Cube", "-o", "posed.blend", cwd=files)
+    done = contact_edit(
+        "pose", "tiny.blend", "--hand", "Cube", "-o", "posed.blend", cwd=files, user_dir=files / "user"
+    )
     assert done.returncode == 1
     [line] = done.stderr.splitlines()
     assert "no object chosen" in line and "name it with --object NAME (mesh objects: Ball, Cube)" in line
     assert "--hand" not in line and "Contact tab first" not in line
     # Both named, but nothing to pose: still one line, naming the scene.
     done = contact_edit(
-        "pose", "tiny.blend", "--hand", "Cube", "--object", "Ball", "-o", "posed.blend", cwd=files
+        "pose",
+        "tiny.blend",
+        "--hand",
+        "Cube",
+        "--object",
+        "Ball",
+        "-o",
+        "posed.blend",
+        cwd=files,
+        user_dir=files / "user",
     )
     assert done.returncode == 1
     [line] = done.stderr.splitlines()
@@ -132,10 +135,6 @@ libc.printf(b"c-after\\n")
 libc.fflush(None)
 print("after", flush=True)
 """
-    env = {**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "user")}
-    env.pop("PYTHONUNBUFFERED", None)  # the C library buffers standard output, as for most users
-    done = subprocess.run(
-        [sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=120
-    )
+    done = fresh_process([sys.executable, "-c", script], user_dir=tmp_path / "user", timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.splitlines() == ["before", "c-before", "shown", "c-after", "after"]

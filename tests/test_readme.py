@@ -19,6 +19,7 @@ import pytest
 from contact_edit_addon import keymaps
 
 from . import readme
+from .blender import fresh_process
 
 README = readme.README.read_text(encoding="utf-8")
 needs_bpy = pytest.mark.skipif(importlib.util.find_spec("bpy") is None, reason="needs bpy (the dev extra)")
@@ -99,7 +100,7 @@ def test_ci_runs_the_test_commands_line_by_line():
 @pytest.mark.slow
 def test_the_build_extension_line_builds_an_installable_zip(tmp_path):
     (line,) = readme.block("In Blender", "sh", 0).lines()
-    done = readme.run(readme.command(line), tmp_path, tmp_path / "user")
+    done = fresh_process(readme.command(line), user_dir=tmp_path / "user", cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     (zip_path,) = (tmp_path / "dist").glob("*.zip")
     assert [Path(line).name for line in done.stdout.split()] == [zip_path.name]
@@ -114,7 +115,7 @@ def test_the_pose_line_poses_the_demo_scene(demo, tmp_path):
     (line,) = readme.block("Batch posing", "sh", 0).lines()
     shutil.copytree(demo[0], tmp_path / "demo")
     before = (tmp_path / "demo" / "demo.blend").read_bytes()
-    done = readme.run(readme.command(line), tmp_path, tmp_path / "user")
+    done = fresh_process(readme.command(line), user_dir=tmp_path / "user", cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert "contact-edit pose:" in done.stdout and "patches touch 'Mug'" in done.stdout
     assert (tmp_path / "posed.blend").stat().st_size > 0
@@ -179,7 +180,7 @@ def test_the_blender_background_line_runs_in_a_real_blender(demo, tmp_path):
 def test_the_retargeting_lines_run_as_written(tmp_path):
     synthesize, retarget = readme.block("Retargeting motions", "sh", 0).lines()
     for line in (synthesize, retarget):
-        done = readme.run(readme.command(line), tmp_path, tmp_path / "user")
+        done = fresh_process(readme.command(line), user_dir=tmp_path / "user", cwd=tmp_path)
         assert done.returncode == 0, done.stderr
     summary = json.loads((tmp_path / "witch" / "summary.json").read_text())
     assert summary["frames"] == 240 and summary["warnings"] == []
@@ -227,7 +228,7 @@ def test_files_from_elsewhere_import_grab_line_runs_as_written(tmp_path):
     save_grab(motion, tmp_path / args[2])
     save_mesh(motion.hand_mesh, tmp_path / files["--hand-mesh"])
     save_mesh(motion.object_mesh, tmp_path / files["--object-mesh"])
-    done = readme.run(args, tmp_path, tmp_path / "user")
+    done = fresh_process(args, user_dir=tmp_path / "user", cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     imported = Motion.load(tmp_path / files["-o"])
     assert imported.n_frames == 44 and imported.hand_contacts is not None
