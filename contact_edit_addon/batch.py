@@ -17,6 +17,9 @@ from pathlib import Path
 
 import bpy
 
+from geodesics import ContactError, MeshError
+from solver import SolverError
+
 from . import posing, store
 from .bridge import BridgeError
 
@@ -85,9 +88,9 @@ def pose_scene(
     ------
     BridgeError
         For a scene that is missing, not a .blend file, or damaged (nothing is written then); a missing
-        hand or object choice (:class:`SceneChoiceError`); an output Blender cannot write.
-    ContactError, SolverError
-        For contacts or a rig that cannot be solved.
+        hand or object choice (:class:`SceneChoiceError`); an output Blender cannot write; contacts, a
+        pairing file or a rig that cannot be solved. Every message starts with the file it is about
+        (the library's own error is its ``__cause__``).
     """
     scene_path, output = Path(scene_path).resolve(), Path(output).resolve()
     if scene_path.is_dir():
@@ -111,23 +114,37 @@ def pose_scene(
     if missing:
         raise SceneChoiceError(scene_path, missing, _mesh_names())
     if contacts is not None:
-        store.load_pairing(contacts, settings.hand, settings.target, remap)
+        with _naming(Path(contacts)):
+            store.load_pairing(contacts, settings.hand, settings.target, remap)
     if frame is not None:
         scene.frame_set(frame)
-    problem = posing.problem(scene, stage)
 
     def report(step) -> bool:
         if progress is not None:
             progress(step.iteration, max_evaluations, step.energy)
         return False
 
-    result = problem.ik.solve(problem.theta0, problem.free, report, max_evaluations)
+    with _naming(scene_path):
+        problem = posing.problem(scene, stage)
+        result = problem.ik.solve(problem.theta0, problem.free, report, max_evaluations)
     armature = problem.posed.armature_object()
     animated = armature.animation_data is not None and armature.animation_data.action is not None
     problem.apply(result.theta, scene.frame_current if frame is not None or animated else None)
     settings.last_solve = posing.summary(scene, problem, result)
     _save_atomically(output, quiet)
     return settings.last_solve
+
+
+@contextlib.contextmanager
+def _naming(path: Path) -> Iterator[None]:
+    """Errors of the block as BridgeErrors whose message starts with ``path``, the file they are about."""
+    try:
+        yield
+    except (BridgeError, ContactError, MeshError, SolverError) as err:
+        named = str(err).startswith(str(path))
+        if named and isinstance(err, BridgeError):
+            raise
+        raise BridgeError(str(err) if named else f"{path}: {err}") from err
 
 
 def _mesh_names() -> list[str]:

@@ -274,11 +274,6 @@ def _demo(args: argparse.Namespace) -> int:
 def _pose(args: argparse.Namespace) -> int:
     if _blender() is None:
         return 2
-    from pathlib import Path
-
-    from geodesics import ContactError
-    from solver import SolverError
-
     from . import batch
     from .bridge import BridgeError
 
@@ -292,12 +287,6 @@ def _pose(args: argparse.Namespace) -> int:
             )  # fmt: skip
         except batch.SceneChoiceError as err:  # in the command line's words
             raise BridgeError(err.message("--hand NAME", "--object NAME")) from err
-        except (BridgeError, ContactError, SolverError) as err:  # say which file, if the error does not
-            scene = Path(args.scene).resolve()
-            files = (scene, args.scene, args.output, Path(args.output).resolve(), args.contacts)
-            if not any(str(f) in str(err) for f in files if f is not None):
-                raise BridgeError(f"{scene}: {err}") from err
-            raise
     print(f"contact-edit pose: {summary}")
     print(f"  saved {args.output}")
     return 0
