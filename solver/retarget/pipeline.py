@@ -32,14 +32,17 @@ again (the refinement's re-solves are deterministic, so they are found again too
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import io
 import json
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field, fields, replace
+from functools import cached_property
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -310,31 +313,22 @@ def retarget(
     if not isinstance(target, SkinnedMesh):
         raise SolverError(f"hand must be a HandSpec or a SkinnedMesh, got {type(hand).__name__}")
     annotation.check(motion.hand_mesh, target.mesh)
-    if folder is None:
-        with tempfile.TemporaryDirectory(prefix="retarget-") as temp:
-            return _retarget(motion, hand, target, annotation, options, Path(temp), workers, scheduler,
-                             contacts, progress)  # fmt: skip
-    return _retarget(
-        motion, hand, target, annotation, options, Path(folder), workers, scheduler, contacts, progress
-    )
+    with contextlib.ExitStack() as temporary:
+        if folder is None:
+            folder = temporary.enter_context(tempfile.TemporaryDirectory(prefix="retarget-"))
+        return _retarget(motion, hand, target, annotation, options, Path(folder), workers=workers,
+                         scheduler=scheduler, contacts=contacts, progress=progress)  # fmt: skip
+    return _retarget(motion, hand, target, annotation, options, Path(folder), workers=workers,
+                     scheduler=scheduler, contacts=contacts, progress=progress)  # fmt: skip
 
 
-def _retarget(motion, hand, target, annotation, options, folder, workers, scheduler, contacts, progress):
-    report = progress or (lambda _stage, _done, _total: None)
+def _retarget(motion, hand, target, annotation, options, folder, *, workers, scheduler, contacts, progress):
+    """:func:`retarget`'s stages in order (``target``: ``hand`` built), each timed into the result."""
     seconds, iterations = {}, {}
-    F = motion.n_frames
-    rig = target.rig
-
-    clock = time.perf_counter()
-    if contacts is None and motion.hand_contacts is not None:
-        contacts = transfer_motion(
-            motion, annotation, target.mesh, progress=lambda d, t: report("transfer", d, t)
-        )
-    report("transfer", 1, 1)
-    seconds["transfer"] = time.perf_counter() - clock
-    if contacts is not None and contacts.hand_contacts.n_frames != F:
-        raise SolverError(f"the contacts have {contacts.hand_contacts.n_frames} frames, the motion {F}")
-
+    report = progress or _silent
+    with _timed(seconds, "transfer"):
+        contacts = _transferred(motion, annotation, target, contacts, report)
+    run = _Run(motion, hand, target, annotation, contacts, options, folder, workers, scheduler, report)
     built = build_tasks(
         motion,
         hand,
@@ -345,162 +339,37 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
         use_table=options.use_table,
     )
     tasks = [replace(t, hand=None) for t in built]  # the hand goes to each worker once, not per frame
-    identity = {
-        "motion": _motion_digest(motion),
-        "hand": hand.__dict__
-        if isinstance(hand, HandSpec)
-        else _digest(target.mesh.vertices, target.mesh.faces),
-        "annotation": hashlib.blake2b(json.dumps(annotation.to_dict(), sort_keys=True).encode()).hexdigest(),
-        "contacts": None
-        if contacts is None
-        else _digest(contacts.hand_contacts.faces, contacts.hand_contacts.bary),
-        # What changes the per-frame solves (not the spline or the metrics, which are recomputed).
-        "weights": asdict(options.weights),
-        "root_pass": options.root_pass,
-        "use_table": options.use_table,
-    }
-    refine_identity = {
-        "e_acc": options.e_acc,
-        "max_refine_iterations": options.max_refine_iterations,
-        "min_refine_progress": options.min_refine_progress,
-    }
 
-    def run(stage: str, label: str, stage_tasks: dict, refining: bool = False, shift=(0, 0.0)) -> dict:
-        """The stage's frames solved (``shift``: frames this bar counted before, and expects after)."""
-        extra = refine_identity if refining else {}
-        store = FrameStore(folder / stage, identity | extra | {"stage": stage})
-        before, after = shift
-        return run_frames(
-            _solve, hand if isinstance(hand, HandSpec) else target, stage_tasks, store, workers=workers,
-            scheduler=scheduler, progress=lambda d, t: report(label, before + d, round(before + t + after)),
-        )  # fmt: skip
-
-    def thetas(results: dict[int, dict], frames) -> np.ndarray:
-        return np.stack([results[int(f)]["theta"] for f in frames])
-
-    def evaluations(results: dict[int, dict]) -> int:
-        return int(sum(r["iterations"] for r in results.values()))
-
-    def refine(name: str, label: str, estimate: np.ndarray, by_frame: dict):
-        """§3.4.3 on a per-frame estimate, re-solving ``by_frame``'s tasks into ``folder/<name>-NN``:
-        (refined, valid, log, objective evaluations)."""
-        if not (options.refine and F >= 3):
-            return estimate.copy(), np.isfinite(estimate), None, 0
-        sizes, count = [], [0]  # frames of each re-solve; objective evaluations
-
-        def resolve(frames, seeds):
-            sizes.append(len(frames))
-            redo = {int(f): reseeded(by_frame[int(f)], s) for f, s in zip(frames, seeds, strict=True)}
-            later = remaining_work(sizes, options.max_refine_iterations + 1 - len(sizes))
-            shift = (sum(sizes[:-1]), later)
-            results = run(f"{name}-{len(sizes):02d}", label, redo, refining=True, shift=shift)
-            count[0] += evaluations(results)
-            return thetas(results, frames)
-
-        r = refine_trajectory(
-            estimate, motion.fps, rig.is_rotation, resolve, length=target.length, e_acc=options.e_acc,
-            max_iterations=options.max_refine_iterations, min_progress=options.min_refine_progress,
-        )  # fmt: skip
-        done = sum(sizes) or 1
-        report(label, done, done)
-        return r.theta, r.valid, r.log, count[0]
-
-    default_control = min(F, max(4, round(CONTROL_PER_SECOND * (F - 1) / motion.fps) + 1))
-
-    def fit(refined: np.ndarray, valid: np.ndarray, n: int) -> tuple[SplineFit, np.ndarray]:
-        """§3.4.4: the spline, and its curves brought into the rig's bounds (unwrapped angles past the
-        limits wrap back, not clip)."""
-        spline = fit_bspline(refined, min(n, F), valid=valid, fps=motion.fps)
-        return spline, rig.clip(spline.values)
-
-    clock = time.perf_counter()
-    if options.root_pass:
-        roots = run("root", "root", {t.frame: t for t in tasks})
-        root_results = [_AsResult(f, r["theta"]) for f, r in roots.items()]
-        fulls_tasks = full_tasks(tasks, root_results)
-        iterations["root"] = evaluations(roots)
-    else:
-        report("root", 1, 1)
-        fulls_tasks = [replace(t, stage="full", align_root=False) for t in tasks]
-        iterations["root"] = 0
-    seconds["root"] = time.perf_counter() - clock
-    clock = time.perf_counter()
-    fulls = run("full", "full", {t.frame: t for t in fulls_tasks})
-    estimate = thetas(fulls, range(F))
-    estimate_contact = np.array([fulls[f]["contact_distance"] for f in range(F)], dtype=np.float64)
-    estimate_marker = np.array([fulls[f]["marker_distance"] for f in range(F)], dtype=np.float64)
-    iterations["full"] = evaluations(fulls)
-    seconds["full"] = time.perf_counter() - clock
-
-    clock = time.perf_counter()
-    refined, valid, log, iterations["refine"] = refine(
-        "refine", "refine", estimate, {t.frame: t for t in fulls_tasks}
-    )
-    seconds["refine"] = time.perf_counter() - clock
-
-    clock = time.perf_counter()
-    warnings = []
-    counts = [options.n_control] if options.n_control else _control_counts(default_control, F)
-    # Leaving out what refinement could not smooth (§3.4.3) first; if no count fits that way, all
-    # samples (a motion faster than the threshold has too few left to bridge the gaps).
-    masks = [valid] + ([np.isfinite(refined)] if not valid.all() else [])
-    tries = [(mask, n) for mask in masks for n in counts]
-    fits = []  # (ratio to the estimate, spline, curves, contact and marker distances) of each try
-    for mask, n in tries:
-        spline, theta = fit(refined, mask, n)
-        distances = _distances(motion, target, annotation, contacts, theta)
-        fits.append((_fit_ratio(distances, (estimate_contact, estimate_marker)), spline, theta, distances))
-        report("spline", len(fits), len(tries))
-        if fits[-1][0] <= FIT_BAR:
-            break
-    best = min(range(len(fits)), key=lambda i: fits[i][0])
-    ratio, spline, theta, (contact, marker) = fits[best]
-    if best >= len(counts):
-        valid = tries[best][0]  # the fit saw every sample
-        warnings.append(_unmasked_warning(len(spline.control), log))
-    if ratio > FIT_BAR:
-        warnings.append(_misfit_warning(ratio, len(spline.control), (contact, marker), valid, log))
-    report("spline", len(tries), len(tries))
-    seconds["spline"] = time.perf_counter() - clock
+    with _timed(seconds, "root"):
+        roots, full_stage, iterations["root"] = run.roots(tasks)
+    with _timed(seconds, "full"):
+        fulls = run.solve("full", "full", {t.frame: t for t in full_stage})
+        estimate = _thetas(fulls, range(run.frames))
+        estimate_contact, estimate_marker = (
+            np.array([fulls[f][key] for f in range(run.frames)], dtype=np.float64)
+            for key in ("contact_distance", "marker_distance")
+        )
+        iterations["full"] = _evaluations(fulls)
+    with _timed(seconds, "refine"):
+        refined, valid, log, iterations["refine"] = run.refine(
+            "refine", "refine", estimate, {t.frame: t for t in full_stage}
+        )
+    with _timed(seconds, "spline"):
+        fitted = run.spline(refined, valid, log, (estimate_contact, estimate_marker))
 
     baselines, table = {}, None
     if options.baselines:
-        # §4.6: each baseline is given our root pass as its "ground-truth" root (the full estimate's root
-        # without a root pass), solves every frame on its own and is refined and fitted like ours.
-        clock = time.perf_counter()
-        given = thetas(roots, range(F)) if options.root_pass else estimate
-        for method, make in BASELINES.items():
-            name = method.lower()
-            by_frame = {t.frame: replace(t, hand=None) for t in make(built, annotation, given)}
-            solved = run(name, "baselines", by_frame)
-            b_refined, b_valid, _, resolved = refine(
-                f"{name}-refine", "baselines", thetas(solved, range(F)), by_frame
-            )
-            iterations[name] = evaluations(solved) + resolved
-            baselines[method] = fit(b_refined, b_valid, len(spline.control))[1]  # our count
-        report("baselines", 1, 1)
-        seconds["baselines"] = time.perf_counter() - clock
-
-    clock = time.perf_counter()
-    vertices = np.stack([target.posed_vertices(t) for t in theta])
-    if options.baselines:
-        rows = {m: _distances(motion, target, annotation, contacts, c) for m, c in baselines.items()}
-        table = Table.from_distances({**rows, "Ours": (contact, marker)})
-    intersections = None
-    if options.intersections:
-        meter = IntersectionMeter(target.mesh, motion.object_mesh, motion.table, motion.table_size)
-        poses = motion.object_poses
-        # Frames are measured in parallel like the solves; the folder is named by the final curves, so a
-        # rerun with other curves (e.g. another control point count) measures them anew.
-        store = FrameStore(folder / f"metrics-{_digest(theta)}", identity | {"stage": "metrics"})
-        measured = run_frames(
-            _measure, meter, {f: (vertices[f], None if poses is None else poses[f]) for f in range(F)},
-            store, workers=workers, scheduler=scheduler, progress=lambda d, t: report("metrics", d, t),
-        )  # fmt: skip
-        columns = (np.array([measured[f][k.name] for f in range(F)]) for k in fields(Intersections))
-        intersections = Intersections(*(c.astype(np.float64) for c in columns))
-    report("metrics", 1, 1)
-    seconds["metrics"] = time.perf_counter() - clock
+        with _timed(seconds, "baselines"):
+            given = _thetas(roots, range(run.frames)) if options.root_pass else estimate
+            baselines, evaluations = run.baselines(built, given, len(fitted.spline.control))
+            iterations |= evaluations
+    with _timed(seconds, "metrics"):
+        vertices = np.stack([target.posed_vertices(t) for t in fitted.theta])
+        if options.baselines:
+            rows = {m: run.distances(c) for m, c in baselines.items()}
+            table = Table.from_distances({**rows, "Ours": (fitted.contact, fitted.marker)})
+        intersections = run.intersections(fitted.theta, vertices) if options.intersections else None
+        report("metrics", 1, 1)
 
     result_motion = replace(
         motion,
@@ -510,13 +379,260 @@ def _retarget(motion, hand, target, annotation, options, folder, workers, schedu
         object_contacts=None if contacts is None else contacts.object_contacts,
         source_kind=hand.kind if isinstance(hand, HandSpec) else None,
         source_scale=float(hand.scale) if isinstance(hand, HandSpec) else 1.0,
-        source_theta=theta,
+        source_theta=fitted.theta,
     )
     return Retarget(
-        result_motion, theta, estimate, refined, valid, spline, log, marker, contact, estimate_contact,
-        intersections, contacts, baselines, table, seconds, iterations, estimate_marker, default_control,
-        tuple(warnings),
+        result_motion, fitted.theta, estimate, refined, fitted.valid, fitted.spline, log, fitted.marker,
+        fitted.contact, estimate_contact, intersections, contacts, baselines, table, seconds, iterations,
+        estimate_marker, run.default_control, fitted.warnings,
     )  # fmt: skip
+
+
+def _silent(_stage: str, _done: int, _total: int) -> None:
+    """The progress callback when none is given."""
+
+
+@contextlib.contextmanager
+def _timed(seconds: dict, stage: str) -> Iterator[None]:
+    """Add the wall-clock seconds of the block to ``seconds[stage]``."""
+    clock = time.perf_counter()
+    try:
+        yield
+    finally:
+        seconds[stage] = time.perf_counter() - clock
+
+
+def _transferred(motion, annotation, target, contacts, report) -> TransferredContacts | None:
+    """Stage 1: the given target-hand contacts, else the motion's transferred (None without contacts)."""
+    if contacts is None and motion.hand_contacts is not None:
+        contacts = transfer_motion(
+            motion, annotation, target.mesh, progress=lambda d, t: report("transfer", d, t)
+        )
+    report("transfer", 1, 1)
+    if contacts is not None and contacts.hand_contacts.n_frames != motion.n_frames:
+        raise SolverError(
+            f"the contacts have {contacts.hand_contacts.n_frames} frames, the motion {motion.n_frames}"
+        )
+    return contacts
+
+
+def _thetas(results: dict[int, dict], frames) -> np.ndarray:
+    """(len(frames), d) the solved DOF vectors of ``frames``."""
+    return np.stack([results[int(f)]["theta"] for f in frames])
+
+
+def _evaluations(results: dict[int, dict]) -> int:
+    """Objective evaluations of a stage's solves, summed."""
+    return int(sum(r["iterations"] for r in results.values()))
+
+
+@dataclass(frozen=True, eq=False)
+class _Run:
+    """One retarget's inputs and its folder: what the stages after the transfer share.
+
+    ``hand`` is as the caller gave it (a HandSpec is rebuilt in each worker), ``target`` the hand built;
+    ``report`` is ``progress(stage, done, total)``.
+    """
+
+    motion: Motion
+    hand: HandSpec | SkinnedMesh
+    target: SkinnedMesh
+    annotation: HandPairAnnotation
+    contacts: TransferredContacts | None
+    options: RetargetOptions
+    folder: Path
+    workers: int | None
+    scheduler: str | None
+    report: Progress
+
+    @property
+    def frames(self) -> int:
+        return self.motion.n_frames
+
+    @cached_property
+    def identity(self) -> dict:
+        """What changes the per-frame solves (not the spline or the metrics, which are recomputed): a
+        folder holding frames of another identity is refused (:class:`.executor.FrameStore`)."""
+        hand, target, contacts, options = self.hand, self.target, self.contacts, self.options
+        return {
+            "motion": _motion_digest(self.motion),
+            "hand": hand.__dict__
+            if isinstance(hand, HandSpec)
+            else _digest(target.mesh.vertices, target.mesh.faces),
+            "annotation": hashlib.blake2b(
+                json.dumps(self.annotation.to_dict(), sort_keys=True).encode()
+            ).hexdigest(),
+            "contacts": None
+            if contacts is None
+            else _digest(contacts.hand_contacts.faces, contacts.hand_contacts.bary),
+            "weights": asdict(options.weights),
+            "root_pass": options.root_pass,
+            "use_table": options.use_table,
+        }
+
+    @cached_property
+    def default_control(self) -> int:
+        """The paper's spline control point count for this motion: :data:`CONTROL_PER_SECOND` per second,
+        at least 4, at most one per frame."""
+        F = self.frames
+        return min(F, max(4, round(CONTROL_PER_SECOND * (F - 1) / self.motion.fps) + 1))
+
+    def solve(self, stage: str, label: str, tasks: dict, refining: bool = False, shift=(0, 0.0)) -> dict:
+        """A stage's frames solved into ``folder/<stage>``, by frame. ``label`` is the progress bar;
+        ``shift``: frames this bar counted before, and expects after."""
+        extra = (
+            {
+                "e_acc": self.options.e_acc,
+                "max_refine_iterations": self.options.max_refine_iterations,
+                "min_refine_progress": self.options.min_refine_progress,
+            }
+            if refining
+            else {}
+        )
+        store = FrameStore(self.folder / stage, self.identity | extra | {"stage": stage})
+        before, after = shift
+        return run_frames(
+            _solve, self.hand if isinstance(self.hand, HandSpec) else self.target, tasks, store,
+            workers=self.workers, scheduler=self.scheduler,
+            progress=lambda d, t: self.report(label, before + d, round(before + t + after)),
+        )  # fmt: skip
+
+    def roots(self, tasks: list) -> tuple[dict, list, int]:
+        """Stage 2a: the root pass (§3.4.2) when asked for: (root results by frame, the full solves'
+        tasks seeded by them, objective evaluations)."""
+        if not self.options.root_pass:
+            self.report("root", 1, 1)
+            return {}, [replace(t, stage="full", align_root=False) for t in tasks], 0
+        roots = self.solve("root", "root", {t.frame: t for t in tasks})
+        seeds = [_AsResult(f, r["theta"]) for f, r in roots.items()]
+        return roots, full_tasks(tasks, seeds), _evaluations(roots)
+
+    def refine(self, name: str, label: str, estimate: np.ndarray, by_frame: dict):
+        """§3.4.3 on a per-frame estimate (F, d), re-solving ``by_frame``'s tasks into
+        ``folder/<name>-NN``: (refined, valid, log, objective evaluations)."""
+        options = self.options
+        if not (options.refine and self.frames >= 3):
+            return estimate.copy(), np.isfinite(estimate), None, 0
+        sizes, count = [], [0]  # frames of each re-solve; objective evaluations
+
+        def resolve(frames, seeds):
+            sizes.append(len(frames))
+            redo = {int(f): reseeded(by_frame[int(f)], s) for f, s in zip(frames, seeds, strict=True)}
+            later = remaining_work(sizes, options.max_refine_iterations + 1 - len(sizes))
+            shift = (sum(sizes[:-1]), later)
+            results = self.solve(f"{name}-{len(sizes):02d}", label, redo, refining=True, shift=shift)
+            count[0] += _evaluations(results)
+            return _thetas(results, frames)
+
+        r = refine_trajectory(
+            estimate, self.motion.fps, self.target.rig.is_rotation, resolve, length=self.target.length,
+            e_acc=options.e_acc, max_iterations=options.max_refine_iterations,
+            min_progress=options.min_refine_progress,
+        )  # fmt: skip
+        done = sum(sizes) or 1
+        self.report(label, done, done)
+        return r.theta, r.valid, r.log, count[0]
+
+    def fit(self, refined: np.ndarray, valid: np.ndarray, n: int) -> tuple[SplineFit, np.ndarray]:
+        """§3.4.4: the spline of ``n`` control points (at most one per frame), and its curves (F, d)
+        brought into the rig's bounds (unwrapped angles past the limits wrap back, not clip)."""
+        spline = fit_bspline(refined, min(n, self.frames), valid=valid, fps=self.motion.fps)
+        return spline, self.target.rig.clip(spline.values)
+
+    def spline(self, refined: np.ndarray, valid: np.ndarray, log: RefineLog | None, estimate) -> _Fitted:
+        """Stage 4: the first fit, of the paper's count and more (:func:`_control_counts`), whose curves
+        leave the contacts (or markers) within :data:`FIT_BAR` of the per-frame ``estimate``'s
+        (contact, marker) distances; else the best, with warnings saying why."""
+        counts = [self.options.n_control] if self.options.n_control else _control_counts(
+            self.default_control, self.frames
+        )  # fmt: skip
+        # Leaving out what refinement could not smooth (§3.4.3) first; if no count fits that way, all
+        # samples (a motion faster than the threshold has too few left to bridge the gaps).
+        masks = [valid] + ([np.isfinite(refined)] if not valid.all() else [])
+        tries = [(mask, n) for mask in masks for n in counts]
+        fits = []  # (ratio to the estimate, spline, curves, contact and marker distances) of each try
+        for mask, n in tries:
+            spline, theta = self.fit(refined, mask, n)
+            distances = self.distances(theta)
+            fits.append((_fit_ratio(distances, estimate), spline, theta, distances))
+            self.report("spline", len(fits), len(tries))
+            if fits[-1][0] <= FIT_BAR:
+                break
+        best = min(range(len(fits)), key=lambda i: fits[i][0])
+        ratio, spline, theta, (contact, marker) = fits[best]
+        warnings = []
+        if best >= len(counts):
+            valid = tries[best][0]  # the fit saw every sample
+            warnings.append(_unmasked_warning(len(spline.control), log))
+        if ratio > FIT_BAR:
+            warnings.append(_misfit_warning(ratio, len(spline.control), (contact, marker), valid, log))
+        self.report("spline", len(tries), len(tries))
+        return _Fitted(spline, theta, valid, contact, marker, tuple(warnings))
+
+    def baselines(self, built: list, given: np.ndarray, n_control: int) -> tuple[dict, dict]:
+        """Stage 5, §4.6: each baseline is given ``given`` (F, d) as its "ground-truth" root (our root
+        pass, or the full estimate's root without one), solves every frame on its own and is refined and
+        fitted like ours, with our control point count. (Final curves by method, objective evaluations
+        by method.)"""
+        curves, evaluations = {}, {}
+        for method, make in BASELINES.items():
+            name = method.lower()
+            by_frame = {t.frame: replace(t, hand=None) for t in make(built, self.annotation, given)}
+            solved = self.solve(name, "baselines", by_frame)
+            refined, valid, _, resolved = self.refine(
+                f"{name}-refine", "baselines", _thetas(solved, range(self.frames)), by_frame
+            )
+            evaluations[name] = _evaluations(solved) + resolved
+            curves[method] = self.fit(refined, valid, n_control)[1]
+        self.report("baselines", 1, 1)
+        return curves, evaluations
+
+    def intersections(self, theta: np.ndarray, vertices: np.ndarray) -> Intersections:
+        """Stage 6: the intersection volumes of the hand posed by the curves θ (F, d) as ``vertices``
+        (F, V, 3), frames measured in parallel like the solves. The folder is named by the curves, so a
+        rerun with other curves (e.g. another control point count) measures them anew."""
+        motion, F = self.motion, self.frames
+        meter = IntersectionMeter(self.target.mesh, motion.object_mesh, motion.table, motion.table_size)
+        poses = motion.object_poses
+        store = FrameStore(self.folder / f"metrics-{_digest(theta)}", self.identity | {"stage": "metrics"})
+        measured = run_frames(
+            _measure, meter, {f: (vertices[f], None if poses is None else poses[f]) for f in range(F)},
+            store, workers=self.workers, scheduler=self.scheduler,
+            progress=lambda d, t: self.report("metrics", d, t),
+        )  # fmt: skip
+        columns = (np.array([measured[f][k.name] for f in range(F)]) for k in fields(Intersections))
+        return Intersections(*(c.astype(np.float64) for c in columns))
+
+    def distances(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-frame mean contact and marker distances (F,) of the target hand posed by θ (F, d), in the
+        order of :func:`.baselines.frame_distances` (NaN: none that frame)."""
+        motion, target, F = self.motion, self.target, self.frames
+        marker = np.full(F, np.nan)
+        if self.annotation.markers:
+            pairs = self.annotation.marker_pairs()
+            goal = pairs.targets(motion.hand_mesh, motion.hand_vertices)
+            posed = np.stack([target.posed_points(t, pairs.target)[0] for t in theta])
+            p = len(pairs.target)
+            marker = mean_distances(posed.reshape(-1, 3), goal.reshape(-1, 3), np.arange(F + 1) * p)
+        contact = np.full(F, np.nan)
+        if self.contacts is not None:
+            hand_c, obj_c = self.contacts.hand_contacts, self.contacts.object_contacts
+            offsets = np.asarray(hand_c.offsets)
+            P = np.concatenate([target.posed_points(theta[f], hand_c.frame(f))[0] for f in range(F)])
+            contact = mean_distances(P, object_contact_geometry(motion, obj_c)[0], offsets)
+        return contact, marker
+
+
+class _Fitted(NamedTuple):
+    """The spline stage's outcome: the fit, its curves (F, d), the samples it saw (F, d), the contact and
+    marker distances (F,) of its curves, and what is wrong with it in words."""
+
+    spline: SplineFit
+    theta: np.ndarray
+    valid: np.ndarray
+    contact: np.ndarray
+    marker: np.ndarray
+    warnings: tuple[str, ...]
 
 
 def _control_counts(first: int, frames: int) -> list[int]:
@@ -572,26 +688,6 @@ class _AsResult:
 
     frame: int
     theta: np.ndarray
-
-
-def _distances(motion, target, annotation, contacts, theta) -> tuple[np.ndarray, np.ndarray]:
-    """Per-frame mean contact and marker distances of the target hand posed by θ (F, d), in the order of
-    :func:`.baselines.frame_distances`."""
-    F = motion.n_frames
-    marker = np.full(F, np.nan)
-    if annotation.markers:
-        pairs = annotation.marker_pairs()
-        goal = pairs.targets(motion.hand_mesh, motion.hand_vertices)
-        posed = np.stack([target.posed_points(t, pairs.target)[0] for t in theta])
-        p = len(pairs.target)
-        marker = mean_distances(posed.reshape(-1, 3), goal.reshape(-1, 3), np.arange(F + 1) * p)
-    contact = np.full(F, np.nan)
-    if contacts is not None:
-        hand_c, obj_c = contacts.hand_contacts, contacts.object_contacts
-        offsets = np.asarray(hand_c.offsets)
-        P = np.concatenate([target.posed_points(theta[f], hand_c.frame(f))[0] for f in range(F)])
-        contact = mean_distances(P, object_contact_geometry(motion, obj_c)[0], offsets)
-    return contact, marker
 
 
 def save_result(
