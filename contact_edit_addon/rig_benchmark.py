@@ -42,7 +42,7 @@ def _energy_time(ik: ContactIK, theta: np.ndarray, with_gradient: bool) -> float
     times = []
     for _ in range(EVALUATIONS):
         t = time.perf_counter()
-        ik.energy(theta, with_gradient, dofs=free)
+        ik.energy_and_gradient(theta, dofs=free) if with_gradient else ik.energy(theta)
         times.append(time.perf_counter() - t)
     return float(np.median(times))
 

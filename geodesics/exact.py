@@ -30,6 +30,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from .arrays import ranges
 from .errors import GeodesicError, describe_ids
 from .mesh import TriMesh
 from .points import SurfacePoints
@@ -443,8 +444,9 @@ class GeodesicField:
         a_back = mesh.halfedge_angle[corner_in] + np.angle(back / e_in)
         a_back = np.where(boundary, a_back, np.mod(a_back, theta))
         counts = mesh.ring_start[verts + 1] - mesh.ring_start[verts]
-        h = mesh.ring[_ranges(mesh.ring_start[verts], counts)]
-        u = np.repeat(verts, counts)
+        owner, ring = ranges(mesh.ring_start[verts], counts)
+        h = mesh.ring[ring]
+        u = verts[owner]
         ab, th, bd = np.repeat(a_back, counts), np.repeat(theta, counts), np.repeat(boundary, counts)
         lo = mesh.halfedge_angle[h]
         spread = mesh.corner_angles.ravel()[h]
@@ -529,8 +531,8 @@ class GeodesicField:
         """For points z in the frames of ``faces``: the best window entering each face and its distance."""
         order, start = self._windows_by_face()
         counts = start[faces + 1] - start[faces]
-        entry = np.repeat(np.arange(faces.size), counts)
-        w = order[_ranges(start[faces], counts)]
+        entry, at = ranges(start[faces], counts)
+        w = order[at]
         W = self.W
         p = z[entry]
         I = W.img[w]
@@ -709,10 +711,9 @@ def _root_faces(mesh: TriMesh, sources: SurfacePoints):
     )
     at = np.flatnonzero(v >= 0)  # on a vertex: every corner around it, each in its own frame
     counts = mesh.ring_start[v[at] + 1] - mesh.ring_start[v[at]]
-    h = mesh.ring[_ranges(mesh.ring_start[v[at]], counts)]
-    parts.append(
-        (np.repeat(at, counts), h // 3, mesh.face_points[h // 3, h % 3], np.ones(h.size, complex), h)
-    )
+    owner, ring = ranges(mesh.ring_start[v[at]], counts)
+    h = mesh.ring[ring]
+    parts.append((at[owner], h // 3, mesh.face_points[h // 3, h % 3], np.ones(h.size, complex), h))
     return tuple(np.concatenate(column) for column in zip(*parts, strict=True))
 
 
@@ -727,12 +728,3 @@ def _hit(I, X, P0, P1):
     """Parameter t along P0 -> P1 where the ray from I through X crosses that line (clipped to [0, 1])."""
     d = X - I
     return np.clip(_cross(d, I - P0) / _cross(d, P1 - P0), 0.0, 1.0)
-
-
-def _ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """Concatenation of arange(s, s + c) for each (s, c)."""
-    total = int(counts.sum())
-    if total == 0:
-        return np.empty(0, np.int64)
-    offsets = np.repeat(starts - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
-    return offsets + np.arange(total)

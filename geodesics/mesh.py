@@ -24,15 +24,11 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from .arrays import readonly
 from .errors import MeshError, MeshWarning, describe_ids
 
 #: A face whose height is below this fraction of its longest edge is degenerate.
 DEGENERATE_HEIGHT = 1e-12
-
-
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a.setflags(write=False)
-    return a
 
 
 class TriMesh:
@@ -72,8 +68,8 @@ class TriMesh:
         ):
             raise MeshError("face indices must be integers")
         F = F.astype(np.int64)
-        self._vertices = _readonly(V)
-        self._faces = _readonly(F)
+        self._vertices = readonly(V)
+        self._faces = readonly(F)
         self._validate_indices()
         self._validate_coordinates()
         self._build_twins()
@@ -81,7 +77,7 @@ class TriMesh:
         self._build_vertex_fans()
         used = np.zeros(len(V), bool)
         used[F.ravel()] = True
-        self.isolated_vertices = _readonly(np.flatnonzero(~used))
+        self.isolated_vertices = readonly(np.flatnonzero(~used))
         if self.isolated_vertices.size:
             warnings.warn(
                 f"{self.isolated_vertices.size} vertices are used by no face and are ignored: "
@@ -128,8 +124,8 @@ class TriMesh:
             raise MeshError(
                 f"{err}{where}", vertices=err.vertices, faces=polygons_at_fault, edges=err.edges
             ) from None
-        mesh.triangle_polygon = _readonly(polygon)
-        mesh.triangle_corners = _readonly(corners)
+        mesh.triangle_polygon = readonly(polygon)
+        mesh.triangle_corners = readonly(corners)
         return mesh
 
     def _validate_indices(self) -> None:
@@ -180,10 +176,10 @@ class TriMesh:
         reverse = head * n + tail
         pos = np.minimum(np.searchsorted(sorted_key, reverse), len(key) - 1)
         found = sorted_key[pos] == reverse
-        self.twin = _readonly(np.where(found, order[pos], -1))
-        self.halfedge_tail = _readonly(tail)
-        self.halfedge_head = _readonly(head)
-        self.halfedge_edge = _readonly(edge_of)
+        self.twin = readonly(np.where(found, order[pos], -1))
+        self.halfedge_tail = readonly(tail)
+        self.halfedge_head = readonly(head)
+        self.halfedge_edge = readonly(edge_of)
         self.n_edges = int(edge_count.size)
 
     def _validate_geometry(self) -> None:
@@ -205,13 +201,13 @@ class TriMesh:
         x = e1 / len1[:, None]
         nrm = normal / twice_area[:, None]
         y = np.cross(nrm, x)
-        self.face_normals = _readonly(nrm)
-        self.face_areas = _readonly(0.5 * twice_area)
+        self.face_normals = readonly(nrm)
+        self.face_areas = readonly(0.5 * twice_area)
         self._face_axes = np.stack([x, y], axis=1)  # (m, 2, 3): the face frame's x and y axes in 3D
         P = np.zeros((len(F), 3), np.complex128)
         P[:, 1] = len1
         P[:, 2] = (e2 * x).sum(1) + 1j * (e2 * y).sum(1)
-        self.face_points = _readonly(P)
+        self.face_points = readonly(P)
 
     def _build_vertex_fans(self) -> None:
         """Order each vertex's outgoing halfedges counter-clockwise; reject non-manifold vertices."""
@@ -270,18 +266,18 @@ class TriMesh:
         with np.errstate(divide="ignore"):
             scale = np.where(is_boundary, np.pi, 2 * np.pi) / angle_sum
         scale[corners_at == 0] = 0.0
-        self.corner_angles = _readonly(corner.reshape(-1, 3))
-        self.angle_sums = _readonly(angle_sum)
-        self.is_boundary_vertex = _readonly(is_boundary)
-        self.halfedge_angle = _readonly(angle)
-        self.vertex_angle_scale = _readonly(scale)
-        self.vertex_halfedge = _readonly(start)
+        self.corner_angles = readonly(corner.reshape(-1, 3))
+        self.angle_sums = readonly(angle_sum)
+        self.is_boundary_vertex = readonly(is_boundary)
+        self.halfedge_angle = readonly(angle)
+        self.vertex_angle_scale = readonly(scale)
+        self.vertex_halfedge = readonly(start)
         #: Outgoing halfedges of vertex v in counter-clockwise order: ring[ring_start[v]:ring_start[v+1]].
-        self.ring = _readonly(order)
-        self.ring_start = _readonly(ring_start)
+        self.ring = readonly(order)
+        self.ring_start = readonly(ring_start)
         # Sorted search key (vertex, angle) for finding the corner that holds a direction.
         self.ring_key_stride = float(angle_sum.max()) + 1.0
-        self.ring_key = _readonly(tail[order] * self.ring_key_stride + angle[order])
+        self.ring_key = readonly(tail[order] * self.ring_key_stride + angle[order])
 
     # ------------------------------------------------------------------ basic data
 
@@ -324,30 +320,30 @@ class TriMesh:
     def halfedge_next(self) -> np.ndarray:
         """(3m,) the next halfedge around the same face."""
         h = np.arange(3 * self.n_faces)
-        return _readonly(h - h % 3 + (h + 1) % 3)
+        return readonly(h - h % 3 + (h + 1) % 3)
 
     @cached_property
     def halfedge_prev(self) -> np.ndarray:
         """(3m,) the previous halfedge around the same face."""
         h = np.arange(3 * self.n_faces)
-        return _readonly(h - h % 3 + (h + 2) % 3)
+        return readonly(h - h % 3 + (h + 2) % 3)
 
     @cached_property
     def halfedge_lengths(self) -> np.ndarray:
         """(3m,) length of each halfedge."""
         P = self.face_points
-        return _readonly(np.abs(P[:, [1, 2, 0]] - P).ravel())
+        return readonly(np.abs(P[:, [1, 2, 0]] - P).ravel())
 
     @cached_property
     def face_centroids(self) -> np.ndarray:
         """(m, 3) the centroid of each face."""
-        return _readonly(self._vertices[self._faces].mean(axis=1))
+        return readonly(self._vertices[self._faces].mean(axis=1))
 
     @cached_property
     def face_radii(self) -> np.ndarray:
         """(m,) how far each face reaches from its centroid (no point of the face is farther)."""
         corners = self._vertices[self._faces]
-        return _readonly(np.linalg.norm(corners - self.face_centroids[:, None], axis=2).max(axis=1))
+        return readonly(np.linalg.norm(corners - self.face_centroids[:, None], axis=2).max(axis=1))
 
     @cached_property
     def mean_edge_length(self) -> float:
@@ -373,14 +369,14 @@ class TriMesh:
         m = self.n_faces
         graph = coo_matrix((np.ones(h.size), (h // 3, self.twin[h] // 3)), shape=(m, m))
         _, labels = connected_components(graph, directed=False)
-        return _readonly(labels.astype(np.int64))
+        return readonly(labels.astype(np.int64))
 
     @cached_property
     def vertex_components(self) -> np.ndarray:
         """(n,) component label of each vertex; -1 for isolated vertices."""
         labels = np.full(self.n_vertices, -1, np.int64)
         labels[self._faces.ravel()] = np.repeat(self.face_components, 3)
-        return _readonly(labels)
+        return readonly(labels)
 
     @cached_property
     def n_components(self) -> int:
@@ -415,7 +411,7 @@ class TriMesh:
         r = (e_there / np.abs(e_there)) / (e_here / np.abs(e_here))
         rot[hi] = r
         off[hi] = P[nxt[ti]] - r * P[hi]
-        return _readonly(rot), _readonly(off)
+        return readonly(rot), readonly(off)
 
     @cached_property
     def vertex_normals(self) -> np.ndarray:
@@ -425,7 +421,7 @@ class TriMesh:
         for k in range(3):
             np.add.at(N, self._faces[:, k], self.face_normals * w[:, k, None])
         norm = np.linalg.norm(N, axis=1, keepdims=True)
-        return _readonly(np.divide(N, norm, out=np.zeros_like(N), where=norm > 0))
+        return readonly(np.divide(N, norm, out=np.zeros_like(N), where=norm > 0))
 
     def face_axes(self, faces) -> np.ndarray:
         """(k, 2, 3) 3D x and y axes of the given faces' frames."""

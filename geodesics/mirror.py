@@ -42,6 +42,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
+from .arrays import readonly
 from .axis import Axis
 from .contacts import ContactSet, Link
 from .errors import ContactError, MeshError, describe_ids
@@ -458,11 +459,11 @@ class MirrorMap:
             reflect(source.vertices[v], self.point, self.normal) - target.vertices[vm[v]], axis=1
         )
         self.method = method
-        self.halfedge_map = _readonly(hm)
-        self.vertex_map = _readonly(vm)
-        self.face_map = _readonly(hm[0::3] // 3)
-        self.face_corners = _readonly((hm.reshape(-1, 3) % 3 + 1) % 3)
-        self.deviation = _readonly(deviation)
+        self.halfedge_map = readonly(hm)
+        self.vertex_map = readonly(vm)
+        self.face_map = readonly(hm[0::3] // 3)
+        self.face_corners = readonly((hm.reshape(-1, 3) % 3 + 1) % 3)
+        self.deviation = readonly(deviation)
 
     def __repr__(self) -> str:
         where = "itself" if self.target is self.source else repr(self.target)
@@ -506,8 +507,8 @@ class MirrorMap:
         # Permuted valid coordinates are valid: skip the constructor's renormalization so that mapping
         # there and back returns the very same bits.
         mapped = SurfacePoints.__new__(SurfacePoints)
-        object.__setattr__(mapped, "faces", _readonly(self.face_map[points.faces]))
-        object.__setattr__(mapped, "bary", _readonly(bary))
+        object.__setattr__(mapped, "faces", readonly(self.face_map[points.faces]))
+        object.__setattr__(mapped, "bary", readonly(bary))
         return mapped
 
     def map_directions(self, points: SurfacePoints, z) -> np.ndarray:
@@ -538,12 +539,6 @@ class MirrorMap:
 def _whole_faces(per_face: np.ndarray) -> np.ndarray:
     """(m,) whether the three halfedge images of each face (m, 3) exist and lie in one target face."""
     return np.all(per_face >= 0, axis=1) & np.all(per_face // 3 == per_face[:, :1] // 3, axis=1)
-
-
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a = np.asarray(a)
-    a.setflags(write=False)
-    return a
 
 
 def _grow_component(

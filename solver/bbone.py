@@ -99,6 +99,7 @@ from functools import cached_property
 import numpy as np
 
 from . import analytic
+from .bones import axis_angle_matrix
 from .errors import SolverError
 
 __all__ = [
@@ -524,24 +525,6 @@ def _normalize(v, eps: float = 1e-35):
     return unit, np.where(ok, d, 0.0)
 
 
-def _rodrigues(axis, angle):
-    """(..., 3, 3) ``axis_angle_normalized_to_mat3``: rotation by ``angle`` about the unit ``axis``."""
-    c, s = np.cos(angle), np.sin(angle)
-    x, y, z = axis[..., 0], axis[..., 1], axis[..., 2]
-    ic = 1 - c
-    R = np.empty((*np.broadcast_shapes(x.shape, c.shape), 3, 3), dtype=np.result_type(axis, angle))
-    R[..., 0, 0] = x * x * ic + c
-    R[..., 1, 1] = y * y * ic + c
-    R[..., 2, 2] = z * z * ic + c
-    R[..., 1, 0] = x * y * ic + z * s
-    R[..., 0, 1] = x * y * ic - z * s
-    R[..., 2, 0] = x * z * ic - y * s
-    R[..., 0, 2] = x * z * ic + y * s
-    R[..., 2, 1] = y * z * ic + x * s
-    R[..., 1, 2] = y * z * ic - x * s
-    return R
-
-
 def _vec_roll_to_mat3(vec, roll):
     """(..., 3, 3) ``vec_roll_to_mat3``: the rotation taking +y to ``vec``'s direction, then rolled."""
     nor, _ = _normalize(vec)
@@ -559,7 +542,7 @@ def _vec_roll_to_mat3(vec, roll):
     B[..., 2, 2] = 1 - z * z / theta
     B[..., 0, 2] = B[..., 2, 0] = -x * z / theta
     B = np.where(regular[..., None, None], B, np.diag([-1.0, -1.0, 1.0]))
-    return _rodrigues(nor, roll) @ B
+    return axis_angle_matrix(nor, np.sin(roll), np.cos(roll)) @ B
 
 
 def _twist_y(M):

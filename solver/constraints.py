@@ -468,6 +468,8 @@ _LOCAL_SPACES = ("LOCAL", "LOCAL_OWNER_ORIENT")
 _LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
 _EYE4 = np.eye(4)
 _EYE4.setflags(write=False)
+
+
 def _bone_of(bones: Mapping[str, Any], name: str, what: str) -> Bone:
     try:
         b = bones[name]
@@ -1815,8 +1817,15 @@ def target_matrix(
     """
     world = World.of(world)
     single = Constraint(
-        con.type, con.name, 1.0, con.owner_space, con.target_space, (target,), con.settings,
-        con.space_subtarget, con.space_matrix,
+        con.type,
+        con.name,
+        1.0,
+        con.owner_space,
+        con.target_space,
+        (target,),
+        con.settings,
+        con.space_subtarget,
+        con.space_matrix,
     )
     cs = ConstraintStack.of([single], [owner], _target_bones(targets))
     slot = cs.slots[0]

@@ -324,9 +324,18 @@ class ContactIK:
 
     # ------------------------------------------------------------------ objective
 
-    def energy(self, theta, with_gradient: bool = True, dofs=None):
-        """Energy at θ (d,), its terms (dict), and (unless ``with_gradient`` is False) dE/dθ (d,): exact
-        for the DOFs ``dofs`` (default all); a rig may leave the others' derivatives out (zero)."""
+    def energy(self, theta) -> tuple[float, dict[str, float]]:
+        """Energy at θ (d,) and its terms (dict of floats, summing to the energy)."""
+        energy, terms, _ = self._evaluate(theta, False, None)
+        return energy, terms
+
+    def energy_and_gradient(self, theta, dofs=None) -> tuple[float, dict[str, float], np.ndarray]:
+        """Energy at θ (d,), its terms (dict) and dE/dθ (d,): exact for the DOFs ``dofs`` (default all);
+        a rig may leave the others' derivatives out (zero)."""
+        return self._evaluate(theta, True, dofs)
+
+    def _evaluate(self, theta, with_gradient: bool, dofs) -> tuple[float, dict, np.ndarray | None]:
+        """:meth:`energy_and_gradient`, or only the energy and terms (gradient None)."""
         rig = self.hand.rig
         t = rig.check_theta(theta)
         w = self.weights
@@ -366,7 +375,7 @@ class ContactIK:
             grad += 2 * w.k * dk / self._scale
         energy = float(sum(terms.values()))
         if not with_gradient:
-            return energy, terms
+            return energy, terms, None
         grad += skin.vertices.vjp(kin, adjoint)
         return energy, terms, grad
 
@@ -421,10 +430,10 @@ class ContactIK:
             raise SolverError(f"free needs {rig.n_dofs} flags (one per DOF), got {mask.size}")
         mask &= ~rig.locked
         index = np.flatnonzero(mask)
-        start_energy, start_terms = self.energy(theta, with_gradient=False)
+        start_energy, start_terms = self.energy(theta)
         final, energy, terms, count, status = minimize(
-            functools.partial(self.energy, dofs=index), theta, index, self._scale[index], rig, self.algorithm,
-            max_evaluations, ftol_rel,
+            self.energy, functools.partial(self.energy_and_gradient, dofs=index), theta, index,
+            self._scale[index], rig, self.algorithm, max_evaluations, ftol_rel,
             gradient=self.gradient, progress=progress, start=(start_energy, start_terms),
         )  # fmt: skip
         return SolveResult(
@@ -440,7 +449,8 @@ class ContactIK:
 
 
 def minimize(
-    energy: Callable,
+    energy: Callable[[np.ndarray], tuple[float, dict]],
+    energy_and_gradient: Callable[[np.ndarray], tuple[float, dict, np.ndarray]],
     theta: np.ndarray,
     index: np.ndarray,
     scale: np.ndarray,
@@ -453,14 +463,15 @@ def minimize(
     progress: Callable[[Progress], bool | None] | None = None,
     start: tuple[float, dict] | None = None,
 ) -> tuple[np.ndarray, float, dict, int, str]:
-    """Minimize ``energy(θ, with_gradient) -> (E, terms[, dE/dθ])`` over the DOFs ``index`` of θ with NLopt.
+    """Minimize ``energy(θ) -> (E, terms)`` over the DOFs ``index`` of θ with NLopt; gradient-based
+    algorithms take ``energy_and_gradient(θ) -> (E, terms, dE/dθ)``.
 
     The free DOFs are optimized as ``θ[index] / scale`` (so locations and angles are of one size) within
     the rig's bounds; the others keep θ's values. Returns the best pose seen (never NaN), its energy and
     terms, the number of evaluations and the outcome (see :class:`SolveResult`). ``start`` is θ's energy
     and terms when the caller has them already.
     """
-    start_energy, start_terms = start if start is not None else energy(theta, with_gradient=False)
+    start_energy, start_terms = start if start is not None else energy(theta)
     best = {"energy": start_energy, "theta": theta.copy(), "terms": start_terms}
     count = [0]
     cancelled = [False]
@@ -471,19 +482,19 @@ def minimize(
         return t
 
     def value(x):
-        return energy(full(x), with_gradient=False)[0]
+        return energy(full(x))[0]
 
     def objective(x, grad):
         t = full(x)
         if grad.size:
             if gradient == "analytic":
-                e, terms, g = energy(t)
+                e, terms, g = energy_and_gradient(t)
                 grad[:] = g[index] * scale
             else:
-                e, terms = energy(t, with_gradient=False)
+                e, terms = energy(t)
                 grad[:] = _finite_differences(value, x, e, central=gradient == "central-difference")
         else:
-            e, terms = energy(t, with_gradient=False)
+            e, terms = energy(t)
         count[0] += 1
         if not np.isfinite(e):
             raise nlopt.ForcedStop

@@ -33,6 +33,8 @@ from functools import cached_property
 import numpy as np
 from scipy import sparse
 
+from geodesics.arrays import readonly
+
 from .errors import SolverError, describe_ids
 from .rotations import EULER_ORDERS, axis_rotation, matrix_to_euler, order_axes
 
@@ -40,11 +42,6 @@ from .rotations import EULER_ORDERS, axis_rotation, matrix_to_euler, order_axes
 ORTHONORMAL_TOLERANCE = 1e-6
 #: A bone shorter than this fraction of the longest bone counts as zero-length.
 MIN_RELATIVE_LENGTH = 1e-9
-
-
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a.setflags(write=False)
-    return a
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -182,7 +179,7 @@ class Rig:
         if len(set(self.names)) != nb:
             dup = sorted({n for n in self.names if self.names.count(n) > 1})
             raise SolverError(f"bone names must be unique; repeated: {', '.join(dup)}")
-        self.parents = _readonly(np.array(parents, dtype=np.int64).reshape(-1))
+        self.parents = readonly(np.array(parents, dtype=np.int64).reshape(-1))
         if self.parents.size != nb:
             raise SolverError(f"got {nb} bone names but {self.parents.size} parents")
         bad = np.flatnonzero(self.parents[1:] >= np.arange(1, nb)) + 1
@@ -214,7 +211,7 @@ class Rig:
                 "determinant +1 and a translation; Blender's bone.matrix_local has no scale)",
                 bones=bad,
             )
-        self.matrix_local = _readonly(M)
+        self.matrix_local = readonly(M)
         L = np.array(lengths, dtype=np.float64).reshape(-1)
         if L.size != nb:
             raise SolverError(f"got {nb} bones but {L.size} lengths")
@@ -226,7 +223,7 @@ class Rig:
                 f"(e.g. {self.names[bad[0]]!r}: {float(L[bad[0]])})",
                 bones=bad,
             )
-        self.lengths = _readonly(L)
+        self.lengths = readonly(L)
         modes = tuple(rotation_modes) if rotation_modes is not None else ("XYZ",) * nb
         if len(modes) != nb:
             raise SolverError(f"got {nb} bones but {len(modes)} rotation modes")
@@ -241,9 +238,9 @@ class Rig:
         self.rotation_modes: tuple[str, ...] = modes
 
         nd = 6 + 3 * (nb - 1)
-        self.dof_bone = _readonly(np.concatenate([[0, 0, 0, 0, 0, 0], np.repeat(np.arange(1, nb), 3)]))
-        self.is_rotation = _readonly(np.arange(nd) >= 3)
-        self.dof_component = _readonly(np.concatenate([[0, 1, 2], np.tile([0, 1, 2], nb)]))
+        self.dof_bone = readonly(np.concatenate([[0, 0, 0, 0, 0, 0], np.repeat(np.arange(1, nb), 3)]))
+        self.is_rotation = readonly(np.arange(nd) >= 3)
+        self.dof_component = readonly(np.concatenate([[0, 1, 2], np.tile([0, 1, 2], nb)]))
         self.dof_names: tuple[str, ...] = tuple(
             f"{self.names[b]}.{'rotation' if rot else 'location'}.{'xyz'[c]}"
             for b, rot, c in zip(self.dof_bone, self.is_rotation, self.dof_component, strict=True)
@@ -268,19 +265,19 @@ class Rig:
                 dofs=bad,
                 bones=self.dof_bone[bad],
             )
-        self.lower = _readonly(lo)
-        self.upper = _readonly(hi)
+        self.lower = readonly(lo)
+        self.upper = readonly(hi)
         lk = np.zeros(nd, bool) if locked is None else np.array(locked, dtype=bool).reshape(-1)
         if lk.size != nd:
             raise SolverError(f"locked needs {nd} flags (one per DOF), got {lk.size}")
-        self.locked = _readonly(lk)
+        self.locked = readonly(lk)
 
         # Constant parts of forward kinematics.
         inv_local = np.linalg.inv(M)
         offset = M.copy()
         offset[1:] = inv_local[self.parents[1:]] @ M[1:]
-        self._offset = _readonly(offset)  # parent_rest^-1 @ rest (the root: its rest matrix)
-        self._inv_local = _readonly(inv_local)
+        self._offset = readonly(offset)  # parent_rest^-1 @ rest (the root: its rest matrix)
+        self._inv_local = readonly(inv_local)
         depth = np.zeros(nb, np.int64)
         for b in range(1, nb):
             depth[b] = depth[self.parents[b]] + 1
@@ -291,7 +288,7 @@ class Rig:
             if m in self.rotation_modes
         ]
         # Index of bone b's rotation DOF for component c: rot_dof[b, c].
-        self._rot_dof = _readonly(np.arange(nb)[:, None] * 3 + 3 + np.arange(3)[None, :])
+        self._rot_dof = readonly(np.arange(nb)[:, None] * 3 + 3 + np.arange(3)[None, :])
 
     # ------------------------------------------------------------------ construction
 
@@ -417,7 +414,7 @@ class Rig:
         D = np.eye(self.n_bones, dtype=bool)
         for b in range(1, self.n_bones):
             D[b] |= D[self.parents[b]]
-        return _readonly(D)
+        return readonly(D)
 
     def clip(self, theta) -> np.ndarray:
         """θ (d,), or poses (F, d), within the limits: rotations a whole turn out are wrapped back (the
@@ -519,12 +516,12 @@ class Rig:
 
     def kinematics(self, theta, derivatives: bool = True, dofs=None) -> Kinematics:
         """Forward kinematics of θ (d,), with the DOF axes and pivots unless ``derivatives`` is False
-        (for every DOF: they cost next to nothing here, so ``dofs`` is accepted and ignored)."""
-        return self._kinematics(self.check_theta(theta), derivatives)
+        (for every DOF: they cost next to nothing here, so ``dofs`` is accepted and ignored).
 
-    def _kinematics(self, t: np.ndarray, derivatives: bool) -> Kinematics:
-        """:meth:`kinematics` of a checked θ. Chains of parent products are formed by pointer doubling
-        (``log2(depth)`` batched steps instead of one step per tree level)."""
+        Chains of parent products are formed by pointer doubling (``log2(depth)`` batched steps instead
+        of one step per tree level).
+        """
+        t = self.check_theta(theta)
         nb, nd = self.n_bones, self.n_dofs
         angles = t[3:].reshape(nb, 3)
         rot = self._rotations(angles)

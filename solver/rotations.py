@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from geodesics import quaternions
+
 from . import analytic
 from .errors import SolverError
 
@@ -128,48 +130,12 @@ def quaternion_to_matrix(q) -> np.ndarray:
     norm = _norm(q, axis=-1, keepdims=True)
     if np.any(norm.real == 0) or not np.all(np.isfinite(q)):
         raise SolverError("quaternions must be finite and nonzero")
-    w, x, y, z = np.moveaxis(q / norm, -1, 0)
-    R = np.empty((*w.shape, 3, 3), dtype=q.dtype)
-    R[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    R[..., 0, 1] = 2 * (x * y - w * z)
-    R[..., 0, 2] = 2 * (x * z + w * y)
-    R[..., 1, 0] = 2 * (x * y + w * z)
-    R[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    R[..., 1, 2] = 2 * (y * z - w * x)
-    R[..., 2, 0] = 2 * (x * z - w * y)
-    R[..., 2, 1] = 2 * (y * z + w * x)
-    R[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return R
+    return quaternions.to_matrix(q / norm)
 
 
 def matrix_to_quaternion(R) -> np.ndarray:
     """(..., 4) unit quaternions ``(w, x, y, z)`` with ``w >= 0`` of rotation matrices (..., 3, 3)."""
-    M = _array(R)
-    # Shepperd's method: build from the largest of the four squared components.
-    t = np.stack(
-        [
-            1 + M[..., 0, 0] + M[..., 1, 1] + M[..., 2, 2],
-            1 + M[..., 0, 0] - M[..., 1, 1] - M[..., 2, 2],
-            1 - M[..., 0, 0] + M[..., 1, 1] - M[..., 2, 2],
-            1 - M[..., 0, 0] - M[..., 1, 1] + M[..., 2, 2],
-        ],
-        -1,
-    )
-    pick = np.argmax(t.real, axis=-1)
-    d21, d02, d10 = M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]
-    s21, s02, s10 = M[..., 2, 1] + M[..., 1, 2], M[..., 0, 2] + M[..., 2, 0], M[..., 1, 0] + M[..., 0, 1]
-    candidates = np.stack(
-        [
-            np.stack([t[..., 0], d21, d02, d10], -1),
-            np.stack([d21, t[..., 1], s10, s02], -1),
-            np.stack([d02, s10, t[..., 2], s21], -1),
-            np.stack([d10, s02, s21, t[..., 3]], -1),
-        ],
-        -2,
-    )
-    q = np.take_along_axis(candidates, pick[..., None, None], axis=-2)[..., 0, :]
-    q = q / _norm(q, axis=-1, keepdims=True)
-    return np.where(q[..., :1].real < 0, -q, q)
+    return quaternions.from_matrix(_array(R))
 
 
 def axis_angle_to_matrix(axis_angle) -> np.ndarray:

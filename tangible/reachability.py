@@ -38,6 +38,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from . import rotations as rot
 from .errors import RigError
@@ -79,24 +80,9 @@ class Fit:
     iterations: np.ndarray
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    K = np.zeros((*v.shape[:-1], 3, 3))
-    K[..., 0, 1], K[..., 0, 2] = -v[..., 2], v[..., 1]
-    K[..., 1, 0], K[..., 1, 2] = v[..., 2], -v[..., 0]
-    K[..., 2, 0], K[..., 2, 1] = -v[..., 1], v[..., 0]
-    return K
-
-
 def _expm(w: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) exp([w]×), Rodrigues' formula with series near 0."""
-    t2 = np.sum(w * w, axis=-1)[..., None, None]
-    t = np.sqrt(t2)
-    small = t2 < 1e-12
-    ts = np.where(small, 1.0, t)
-    a = np.where(small, 1.0 - t2 / 6.0, np.sin(ts) / ts)
-    b = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(ts)) / np.where(small, 1.0, t2))
-    K = _skew(w)
-    return np.eye(3) + a * K + b * (K @ K)
+    """(..., 3, 3) exp([w]×) of rotation vectors (..., 3): Rodrigues' formula, by scipy, batched."""
+    return Rotation.from_rotvec(w.reshape(-1, 3)).as_matrix().reshape(*w.shape, 3)
 
 
 class _Problem:

@@ -38,6 +38,8 @@ from types import MappingProxyType
 import numpy as np
 from scipy.optimize import Bounds, LinearConstraint, milp
 
+from geodesics.rigid import kabsch
+
 from . import rotations as rot
 from .device import PALETTE, SPLITTERS, DeviceTree, Piece, SplitterType
 from .errors import RigError
@@ -52,7 +54,6 @@ __all__ = [
     "Reduction",
     "SplitterProgram",
     "branch_nodes",
-    "kabsch",
     "reduce",
     "splitter_candidates",
 ]
@@ -142,17 +143,6 @@ def branch_nodes(skeleton: Skeleton) -> dict[int, BranchNode]:
                 directions=(M[b].T @ M[list(kids[b])])[:, :, 1],
             )
     return nodes
-
-
-def kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Rotations (…, 3, 3) minimizing Σ|R a_i − b_i|² for vector sets a, b (…, k, 3) (Kabsch 1976)."""
-    Hm = np.swapaxes(a, -1, -2) @ b
-    U, _, Vt = np.linalg.svd(Hm)
-    d = np.sign(np.linalg.det(np.swapaxes(Vt, -1, -2) @ np.swapaxes(U, -1, -2)))
-    d = np.where(d == 0, 1.0, d)
-    S = np.broadcast_to(np.eye(3), Hm.shape).copy()
-    S[..., 2, 2] = d
-    return np.swapaxes(Vt, -1, -2) @ S @ np.swapaxes(U, -1, -2)
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from geodesics import quaternions
+
 #: The identity rotation.
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
@@ -62,16 +64,7 @@ def from_axis_angle(axis, angle) -> np.ndarray:
 def to_matrix(q) -> np.ndarray:
     """(..., 3, 3) rotation matrices of quaternions (..., 4) (normalized first)."""
     q = np.asarray(q, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        axis=-2,
-    )
+    return quaternions.to_matrix(q / np.linalg.norm(q, axis=-1, keepdims=True))
 
 
 def from_matrix(R) -> np.ndarray:
@@ -79,25 +72,7 @@ def from_matrix(R) -> np.ndarray:
 
     Uses the largest of the four candidate pivots, so it is accurate for every rotation.
     """
-    R = np.asarray(R, dtype=np.float64)
-    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
-    pivots = np.stack([m00 + m11 + m22, m00 - m11 - m22, m11 - m00 - m22, m22 - m00 - m11], axis=-1)
-    k = np.argmax(pivots, axis=-1)
-    t = np.take_along_axis(pivots, k[..., None], axis=-1)[..., 0] + 1.0
-    s = 0.5 / np.sqrt(t)
-    q = np.empty((*R.shape[:-2], 4))
-    d21, d02, d10 = R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]
-    s21, s02, s10 = R[..., 2, 1] + R[..., 1, 2], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 0] + R[..., 0, 1]
-    cases = [
-        np.stack([t, d21, d02, d10], -1),
-        np.stack([d21, t, s10, s02], -1),
-        np.stack([d02, s10, t, s21], -1),
-        np.stack([d10, s02, s21, t], -1),
-    ]
-    for i, c in enumerate(cases):
-        sel = k == i
-        q[sel] = c[sel] * s[sel][..., None]
-    return normalize(q)
+    return quaternions.from_matrix(np.asarray(R, dtype=np.float64))
 
 
 def rotate(q, v) -> np.ndarray:

@@ -37,15 +37,12 @@ from functools import cached_property
 
 import numpy as np
 
+from geodesics.arrays import readonly
+
 from . import rotations as rot
 from .errors import RigError
 
 __all__ = ["Posed", "Skeleton", "area_weights"]
-
-
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True)
@@ -126,10 +123,10 @@ class Skeleton:
             raise RigError(f"bones {self._list(bad)} have negative or non-finite weights", bones=bad)
         if not W.sum() > 0:
             raise RigError("at least one node weight must be positive")
-        self.parents = _readonly(P)
-        self.matrix_local = _readonly(M.copy())
-        self.lengths = _readonly(L.copy())
-        self.weights = _readonly(W.copy())
+        self.parents = readonly(P)
+        self.matrix_local = readonly(M.copy())
+        self.lengths = readonly(L.copy())
+        self.weights = readonly(W.copy())
 
     def _list(self, ids) -> str:
         ids = np.unique(np.asarray(ids))
@@ -195,7 +192,7 @@ class Skeleton:
     @cached_property
     def roots(self) -> np.ndarray:
         """Bones without a parent."""
-        return _readonly(np.flatnonzero(self.parents < 0))
+        return readonly(np.flatnonzero(self.parents < 0))
 
     @cached_property
     def children(self) -> tuple[tuple[int, ...], ...]:
@@ -214,7 +211,7 @@ class Skeleton:
             p = self.parents[b]
             if p >= 0:
                 S[p] |= S[b]
-        return _readonly(S)
+        return readonly(S)
 
     @cached_property
     def levels(self) -> tuple[np.ndarray, ...]:
@@ -222,7 +219,7 @@ class Skeleton:
         depth = np.zeros(self.n_bones, np.int64)
         for b, p in enumerate(self.parents):
             depth[b] = 0 if p < 0 else depth[p] + 1
-        return tuple(_readonly(np.flatnonzero(depth == d)) for d in range(depth.max() + 1))
+        return tuple(readonly(np.flatnonzero(depth == d)) for d in range(depth.max() + 1))
 
     @cached_property
     def rest_offsets(self) -> tuple[np.ndarray, np.ndarray]:
@@ -235,7 +232,7 @@ class Skeleton:
         par = M[self.parents[has]]
         R[has] = np.swapaxes(par[:, :3, :3], 1, 2) @ M[has, :3, :3]
         t[has] = np.einsum("bji,bj->bi", par[:, :3, :3], M[has, :3, 3] - par[:, :3, 3])
-        return _readonly(R), _readonly(t)
+        return readonly(R), readonly(t)
 
     @cached_property
     def size(self) -> float:
@@ -246,7 +243,7 @@ class Skeleton:
     @cached_property
     def rest_tails(self) -> np.ndarray:
         """(b, 3) rest tail positions."""
-        return _readonly(self.matrix_local[:, :3, 3] + self.lengths[:, None] * self.matrix_local[:, :3, 1])
+        return readonly(self.matrix_local[:, :3, 3] + self.lengths[:, None] * self.matrix_local[:, :3, 1])
 
     # ------------------------------------------------------------------ poses
 

@@ -30,6 +30,8 @@ from types import MappingProxyType
 
 import numpy as np
 
+from geodesics.arrays import readonly
+
 from .errors import DeviceError
 from .joint import joint_rotation
 from .protocol import (
@@ -46,11 +48,6 @@ __all__ = ["DETACH_TIMEOUT", "ComponentState", "DeviceState", "DeviceTopology", 
 
 #: Seconds of silence after which a component and its subtree count as detached (Appendix A).
 DETACH_TIMEOUT = 2.0
-
-
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True)
@@ -381,7 +378,7 @@ class DeviceTopology:
         live = self.attached(now)
         joints = [e for e in self._entries.values() if e.angles is not None and e.kind == "joint"]
         rotations = joint_rotation(np.array([e.angles for e in joints])) if joints else np.empty((0, 4))
-        rotation_of = {e.id: _readonly(np.array(r)) for e, r in zip(joints, rotations, strict=True)}
+        rotation_of = {e.id: readonly(np.array(r)) for e, r in zip(joints, rotations, strict=True)}
         components = {}
         for e in self._entries.values():
             slots = dict(sorted(e.slots.items())) if e.slots else None
@@ -396,14 +393,14 @@ class DeviceTopology:
                 last_seen=e.last_seen,
                 last_heard=e.last_heard,
                 attached_since=e.attached_since,
-                angles=None if e.angles is None else _readonly(np.array(e.angles)),
+                angles=None if e.angles is None else readonly(np.array(e.angles)),
                 raw=e.raw,
                 rotation=rotation_of.get(e.id),
                 data_time=e.data_time,
                 slot_angles=None if slots is None else MappingProxyType(slots),
                 slot_rotations=None
                 if slots is None
-                else _readonly(splitter_rotation(np.array(list(slots.values())))),
+                else readonly(splitter_rotation(np.array(list(slots.values())))),
                 frames=e.frames,
                 acks=e.acks,
                 last_ack=e.last_ack,

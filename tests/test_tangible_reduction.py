@@ -6,13 +6,14 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
+from geodesics.rigid import kabsch
 from tangible import SPLITTERS, Kit, Skeleton, reduce
 from tangible import rotations as rot
 from tangible.assembly import instructions_svg, instructions_text
 from tangible.creatures import creature
 from tangible.errors import RigError
 from tangible.reachability import fit
-from tangible.reduction import MAX_GATE_ERROR, branch_nodes, kabsch, splitter_candidates
+from tangible.reduction import MAX_GATE_ERROR, branch_nodes, splitter_candidates
 from tangible.skeleton import area_weights
 
 KIT = Kit(6, {"T": 1, "cross": 1})

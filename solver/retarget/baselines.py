@@ -496,9 +496,17 @@ class KeyvectorIK:
         p, _, _ = self._skin.sets[0].geometry(self._skin.vertices.positions(kin))
         return self.matrix @ p
 
-    def energy(self, theta, with_gradient: bool = True):
-        """Cost at θ (d,), its terms (dict: keyvector, regularization) and (unless ``with_gradient`` is
-        False) its gradient (d,)."""
+    def energy(self, theta) -> tuple[float, dict[str, float]]:
+        """Cost at θ (d,) and its terms (dict: keyvector, regularization)."""
+        energy, terms, _ = self._evaluate(theta, False)
+        return energy, terms
+
+    def energy_and_gradient(self, theta) -> tuple[float, dict[str, float], np.ndarray]:
+        """Cost at θ (d,), its terms (dict: keyvector, regularization) and its gradient (d,)."""
+        return self._evaluate(theta, True)
+
+    def _evaluate(self, theta, with_gradient: bool) -> tuple[float, dict[str, float], np.ndarray | None]:
+        """:meth:`energy_and_gradient`, or only the cost and terms (gradient None)."""
         rig = self.hand.rig
         t = rig.check_theta(theta)
         kin = rig.kinematics(t, derivatives=with_gradient)
@@ -515,7 +523,7 @@ class KeyvectorIK:
         }
         energy = terms["keyvector"] + terms["regularization"]
         if not with_gradient:
-            return energy, terms
+            return energy, terms, None
         grad_p = self.matrix.T @ ws / self.length
         grad = skin.vertices.vjp(kin, points.adjoint(n, aux, grad_p, None)) + 2 * self.gamma * dp
         return energy, terms, grad
@@ -529,7 +537,17 @@ class KeyvectorIK:
         theta = np.clip(rig.check_theta(theta0, "theta0"), rig.lower, rig.upper)
         index = np.flatnonzero(np.asarray(free, bool) & ~rig.locked)
         scale = np.where(rig.is_rotation, 1.0, self.length)[index]
-        return minimize(self.energy, theta, index, scale, rig, self.algorithm, max_evaluations, ftol_rel)
+        return minimize(
+            self.energy,
+            self.energy_and_gradient,
+            theta,
+            index,
+            scale,
+            rig,
+            self.algorithm,
+            max_evaluations,
+            ftol_rel,
+        )
 
 
 def _source_length(annotation, params: KeyvectorParams, target) -> tuple[float, float]:

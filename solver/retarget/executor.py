@@ -179,7 +179,7 @@ def _run_locally(solve, shared, tasks, todo, store, workers, report, total, done
                 future.cancel()
             raise SolverError(
                 "a worker process ended before finishing its frame. From a script, call this under "
-                "`if __name__ == \"__main__\":`: each worker starts by importing the script (Python's "
+                '`if __name__ == "__main__":`: each worker starts by importing the script (Python\'s '
                 "spawn start method), and would otherwise run it again"
             ) from err
         except BaseException:

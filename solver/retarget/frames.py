@@ -57,6 +57,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from geodesics import SurfacePoints
+from geodesics.rigid import rigid_fit
 
 from ..errors import SolverError
 from ..ik import ContactIK, Markers, Weights
@@ -261,24 +262,6 @@ class FrameResult:
 
 
 # ------------------------------------------------------------------------------------------- solving
-
-
-def rigid_fit(source, target, weights=None) -> np.ndarray:
-    """(4, 4) the rigid transform that best maps points ``source`` (k, 3) onto ``target`` (k, 3) in the
-    (weighted) least-squares sense (Kabsch; no reflection)."""
-    P = np.asarray(source, dtype=np.float64)
-    Q = np.asarray(target, dtype=np.float64)
-    w = np.ones(len(P)) if weights is None else np.asarray(weights, dtype=np.float64)
-    w = w / w.sum()
-    cp, cq = w @ P, w @ Q
-    H = (P - cp).T @ ((Q - cq) * w[:, None])
-    U, _, Vt = np.linalg.svd(H)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0])
-    R = Vt.T @ D @ U.T
-    G = np.eye(4)
-    G[:3, :3] = R
-    G[:3, 3] = cq - R @ cp
-    return G
 
 
 def root_from_transform(rig, G: np.ndarray, compatible=None) -> np.ndarray:

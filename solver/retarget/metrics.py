@@ -53,6 +53,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError
 
 from geodesics import TriMesh
+from geodesics.arrays import ranges
 
 from ..errors import SolverError
 from ..sdf import Box, MeshSDF
@@ -196,13 +197,6 @@ def _vertex_normals(V: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.divide(N, norm, out=np.zeros_like(N), where=norm > 0)
 
 
-def _ragged(starts: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(owner, index) for the concatenated ranges ``starts[i] : starts[i] + counts[i]``."""
-    owner = np.repeat(np.arange(counts.size), counts)
-    offset = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    return owner, np.repeat(starts, counts) + offset
-
-
 def ray_winding(points, signs, direction_frame, vertices, faces, exclude=None) -> np.ndarray:
     """(q,) winding number of a closed mesh around each ray's start, from the crossings of that ray.
 
@@ -251,14 +245,14 @@ def ray_winding(points, signs, direction_frame, vertices, faces, exclude=None) -
     iq = np.floor((P2 - origin) / cell).astype(np.int64)
     ny = int(max(ihi[:, 1].max(), iq[:, 1].max())) + 1
     span = ihi - ilo + 1
-    tri_of, k = _ragged(np.zeros(len(live), np.int64), span[:, 0] * span[:, 1])
+    tri_of, k = ranges(np.zeros(len(live), np.int64), span[:, 0] * span[:, 1])
     key = (ilo[tri_of, 0] + k // span[tri_of, 1]) * ny + ilo[tri_of, 1] + k % span[tri_of, 1]
     order = np.argsort(key, kind="stable")
     key, tri_sorted = key[order], live[tri_of[order]]
     qkey = iq[:, 0] * ny + iq[:, 1]
     start = np.searchsorted(key, qkey, "left")
     count = np.searchsorted(key, qkey, "right") - start
-    qi, pos = _ragged(start, count)
+    qi, pos = ranges(start, count)
     ti = tri_sorted[pos]
     # Only queries within the triangle's box can be inside it (ties on the box edge stay in).
     blo, bhi = box_lo[ti], box_hi[ti]

@@ -81,6 +81,7 @@ import numpy as np
 from numpy.lib import format as npy_format
 
 from geodesics import MeshError, SurfacePoints, TriMesh
+from geodesics.arrays import readonly
 from geodesics.errors import describe_ids
 from geodesics.files import atomic_file
 
@@ -129,11 +130,6 @@ class MotionError(ValueError):
         self.field = field
 
 
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a.setflags(write=False)
-    return a
-
-
 def _float_array(value, field: str, shape: tuple) -> np.ndarray:
     """A read-only float64 copy of ``value`` of the given shape (None: any length), all finite."""
     try:
@@ -145,7 +141,7 @@ def _float_array(value, field: str, shape: tuple) -> np.ndarray:
         bad = np.flatnonzero(~np.all(np.isfinite(a.reshape(len(a), -1)), axis=1)) if a.ndim else [0]
         where = f" (rows {describe_ids(bad)})" if a.ndim else ""
         raise MotionError(f"{field} contains NaN or infinite values{where}", field)
-    return _readonly(a)
+    return readonly(a)
 
 
 def _int_array(value, field: str, shape: tuple) -> np.ndarray:
@@ -154,7 +150,7 @@ def _int_array(value, field: str, shape: tuple) -> np.ndarray:
         raise MotionError(f"{field} must hold integers, got dtype {a.dtype}", field)
     a = np.array(a, dtype=np.int64, copy=True)
     _check_shape(a, field, shape)
-    return _readonly(a)
+    return readonly(a)
 
 
 def _check_shape(a: np.ndarray, field: str, shape: tuple) -> None:
