@@ -224,16 +224,19 @@ def _edited(ann, edit):
     [
         (
             lambda d: d["curves"][0]["source"].update(faces=[10, 7488, 12]),
-            r"curve 'a'\.source: faces \[7488\]",
+            r"curve 'a'\.source\.faces holds \[7488\]",
         ),
-        (lambda d: d["curves"][0]["source"].update(faces=[10, -1, 12]), r"curve 'a'\.source: faces \[-1\]"),
+        (
+            lambda d: d["curves"][0]["source"].update(faces=[10, -1, 12]),
+            r"curve 'a'\.source\.faces holds \[-1\]",
+        ),
         (
             lambda d: d["curves"][0]["target"]["start"].update(faces=[99999]),
-            r"curve 'a'\.target\.start: faces",
+            r"curve 'a'\.target\.start\.faces holds",
         ),
         (
             lambda d: d["markers"][1]["target"].update(faces=[4, 5, 8000]),
-            r"marker 'many'\.target: faces \[8000\]",
+            r"marker 'many'\.target\.faces holds \[8000\]",
         ),
         (
             lambda d: d["curves"][0]["source"].update(faces=[10, 11.5, 12]),
@@ -243,7 +246,10 @@ def _edited(ann, edit):
             lambda d: d["curves"][0]["source"].update(faces=[10, True, 12]),
             r"curve 'a'\.source\.faces must be",
         ),
-        (lambda d: d["curves"][0]["source"].update(faces=[10, 2**70, 12]), r"curve 'a'\.source: faces"),
+        (
+            lambda d: d["curves"][0]["source"].update(faces=[10, 2**70, 12]),
+            r"curve 'a'\.source\.faces must be a list of integer indices",
+        ),
         (
             lambda d: d["curves"][1]["source"]["bary"][1].__setitem__(0, float("nan")),
             r"curve 'b'\.source\.bary.*NaN",
@@ -265,7 +271,7 @@ def _edited(ann, edit):
         ),
         (lambda d: d["curves"][0].update(target=None), "no curve has a counterpart"),
         (lambda d: d["curves"][1].update(name="a"), "curve names repeat"),
-        (lambda d: d.update(threshold=float("nan")), "threshold must be positive"),
+        (lambda d: d.update(threshold=float("nan")), "threshold must be a number, got NaN"),
         (lambda d: d.update(threshold="1 cm"), "threshold must be a number"),
         (lambda d: d["source"].update(vertices=0), r"source\.vertices must be a positive integer"),
         (lambda d: d["target"].pop("topology"), r"target\.topology"),

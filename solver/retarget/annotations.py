@@ -40,6 +40,7 @@ import numpy as np
 
 from geodesics import Axis, ContactAtlas, MeshError, SurfacePoints, TriMesh
 from geodesics.files import read_json, write_atomically
+from geodesics.schema import Fields
 
 from ..errors import SolverError
 from ..hands import Hand
@@ -355,69 +356,31 @@ class HandPairAnnotation:
         }
 
     @classmethod
-    def from_dict(cls, data) -> HandPairAnnotation:
-        """Validate and build from :meth:`to_dict`'s layout; AnnotationError names the offending field."""
-        if not isinstance(data, dict):
-            raise AnnotationError("a hand-pair annotation must be a JSON object")
-        if data.get("format") != FORMAT:
-            raise AnnotationError(
-                f"not a hand-pair annotation: format is {data.get('format')!r}, not {FORMAT!r}"
-            )
-        version = data.get("version")
-        if type(version) is not int or version != VERSION:  # true and 1.0 are not version 1
-            raise AnnotationError(
-                f"unsupported hand-pair annotation version {version!r} (this reads {VERSION})"
-            )
-        source = _read_ref(data.get("source"), "source")
-        target = _read_ref(data.get("target"), "target")
-        threshold = data.get("threshold")
-        if threshold is None:
-            threshold = np.inf
-        elif not isinstance(threshold, (int, float)) or isinstance(threshold, bool):
-            raise AnnotationError("threshold must be a number or null")
-        curves_data = data.get("curves")
-        if not isinstance(curves_data, list):
-            raise AnnotationError("curves must be a list")
+    def from_dict(cls, data, source: str = "hand-pair annotation") -> HandPairAnnotation:
+        """Validate and build from :meth:`to_dict`'s layout; AnnotationError names the offending field
+        (``source``: what to call the data in errors, the file's path when loaded)."""
+        file = Fields(data, source, AnnotationError)
+        file.header(FORMAT, VERSION, "hand-pair annotation")
+        hands = {side: _read_ref(file.object(side)) for side in ("source", "target")}
+        threshold = file.number("threshold", optional=True)
         curves = []
-        for i, c in enumerate(curves_data):
-            where = f"curves[{i}]"
-            if not isinstance(c, dict) or not isinstance(c.get("name"), str):
-                raise AnnotationError(f"{where} must be an object with a name")
-            where = f"curve '{c['name']}'"
-            src = _read_points(c.get("source"), f"{where}.source", source)
-            t = c.get("target")
-            if t is None:
-                curves.append(CurveAnnotation(c["name"], src))
+        for entry in file.objects("curves"):
+            entry = entry.renamed(f"{source}: curve '{entry.string('name')}'")
+            points = _read_points(entry.object("source"), hands["source"])
+            target = entry.object("target", optional=True)
+            if target is None:
+                curves.append(CurveAnnotation(entry.data["name"], points))
                 continue
-            if not isinstance(t, dict):
-                raise AnnotationError(f"{where}.target must be an object or null")
-            start = _read_points(t.get("start"), f"{where}.target.start", target)
-            d = t.get("direction")
-            if not (isinstance(d, list) and len(d) == 2 and all(_is_number(x) for x in d)):
-                raise AnnotationError(f"{where}.target.direction must be [real, imaginary]")
-            scales = []
-            for key in ("axis_scale", "radial_scale"):
-                v = t.get(key)
-                if not _is_number(v):
-                    raise AnnotationError(f"{where}.target.{key} must be a number")
-                scales.append(float(v))
-            curves.append(CurveAnnotation(c["name"], src, start, complex(d[0], d[1]), *scales))
-        markers_data = data.get("markers", [])
-        if not isinstance(markers_data, list):
-            raise AnnotationError("markers must be a list")
+            start = _read_points(target.object("start"), hands["target"])
+            direction = complex(*target.numbers("direction", (2,)))
+            scales = (target.number("axis_scale"), target.number("radial_scale"))
+            curves.append(CurveAnnotation(entry.data["name"], points, start, direction, *scales))
         markers = []
-        for i, m in enumerate(markers_data):
-            if not isinstance(m, dict) or not isinstance(m.get("name"), str):
-                raise AnnotationError(f"markers[{i}] must be an object with a name")
-            where = f"marker '{m['name']}'"
-            markers.append(
-                MarkerAnnotation(
-                    m["name"],
-                    _read_points(m.get("source"), f"{where}.source", source),
-                    _read_points(m.get("target"), f"{where}.target", target),
-                )
-            )
-        return cls(source, target, tuple(curves), tuple(markers), float(threshold))
+        for entry in file.objects("markers", optional=True):
+            entry = entry.renamed(f"{source}: marker '{entry.string('name')}'")
+            pair = (_read_points(entry.object(side), hands[side]) for side in ("source", "target"))
+            markers.append(MarkerAnnotation(entry.data["name"], *pair))
+        return cls(hands["source"], hands["target"], tuple(curves), tuple(markers), threshold or np.inf)
 
     def save(self, path) -> None:
         """Write the annotation as JSON, atomically (a complete file or none)."""
@@ -426,7 +389,7 @@ class HandPairAnnotation:
     @classmethod
     def load(cls, path, source_mesh: TriMesh | None = None, target_mesh: TriMesh | None = None):
         """Read and validate an annotation file; with meshes given, also check it was made for them."""
-        annotation = cls.from_dict(read_json(path, "annotation file", AnnotationError))
+        annotation = cls.from_dict(read_json(path, "annotation file", AnnotationError), str(path))
         if source_mesh is not None:
             annotation.source.check(source_mesh, "source")
         if target_mesh is not None:
@@ -436,46 +399,22 @@ class HandPairAnnotation:
         return annotation
 
 
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+def _read_ref(data: Fields) -> HandRef:
+    return HandRef(
+        data.string("kind", optional=True),
+        data.number("scale", positive=True),
+        data.integer("vertices", positive=True),
+        data.integer("faces", positive=True),
+        data.string("topology"),
+    )
 
 
-def _read_ref(data, side: str) -> HandRef:
-    if not isinstance(data, dict):
-        raise AnnotationError(f"{side} must be an object describing the hand")
-    kind = data.get("kind")
-    if kind is not None and not isinstance(kind, str):
-        raise AnnotationError(f"{side}.kind must be a string or null")
-    for key in ("vertices", "faces"):
-        v = data.get(key)
-        if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
-            raise AnnotationError(f"{side}.{key} must be a positive integer")
-    if not _is_number(data.get("scale")) or data["scale"] <= 0:
-        raise AnnotationError(f"{side}.scale must be a positive number")
-    if not isinstance(data.get("topology"), str):
-        raise AnnotationError(f"{side}.topology must be the mesh's topology hash")
-    return HandRef(kind, float(data["scale"]), data["vertices"], data["faces"], data["topology"])
-
-
-def _read_points(data, where: str, ref: HandRef) -> SurfacePoints:
-    if not isinstance(data, dict):
-        raise AnnotationError(f"{where} must be an object with faces and bary")
-    faces = data.get("faces")
-    # Checked as JSON values before numpy sees them: 1.5 or true would be truncated to a face, 2**70
-    # would overflow int64.
-    if not isinstance(faces, list) or not all(type(f) is int for f in faces):
-        raise AnnotationError(f"{where}.faces must be a list of integer face indices")
-    bad = [f for f in faces if not 0 <= f < ref.n_faces]
-    if bad:
-        raise AnnotationError(
-            f"{where}: faces {bad[:5]} are not faces of the hand (it has {ref.n_faces}, numbered from 0)"
-        )
+def _read_points(data: Fields, hand: HandRef) -> SurfacePoints:
+    faces = data.indices("faces", hand.n_faces)
     try:
-        bary = np.array(data.get("bary"), dtype=np.float64)
-        points = SurfacePoints(np.array(faces, dtype=np.int64), bary)
-    except (TypeError, ValueError, OverflowError, MeshError) as e:
-        raise AnnotationError(f"{where}.bary: {e}") from None
-    return points
+        return SurfacePoints(faces, data.numbers("bary", (None, 3), finite=False))
+    except MeshError as e:
+        raise AnnotationError(f"{data.field('bary')}: {e}") from None
 
 
 # ------------------------------------------------------------------------------ default annotations
