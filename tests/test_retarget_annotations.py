@@ -25,6 +25,8 @@ from solver.retarget.annotations import (
 )
 from solver.retarget.motion import Contacts
 
+from .json_mutations import mutate
+
 FINGERS = ("thumb", "index", "middle", "ring", "pinky")
 
 
@@ -304,24 +306,6 @@ def test_load_checks_points_against_the_meshes(tmp_path, human):
     _assert_same(back, ann)
 
 
-# A JSON value of any kind, to replace a part of a valid file.
-_json_values = st.recursive(
-    st.none() | st.booleans() | st.integers(-(2**80), 2**80) | st.floats() | st.text(max_size=5),
-    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=6), inner, max_size=4),
-    max_leaves=12,
-)
-
-
-def _paths(value, prefix=()):
-    yield prefix
-    if isinstance(value, dict):
-        for k, v in value.items():
-            yield from _paths(v, (*prefix, k))
-    elif isinstance(value, list):
-        for i, v in enumerate(value):
-            yield from _paths(v, (*prefix, i))
-
-
 @pytest.fixture(scope="module")
 def small_text(human):
     return json.dumps(_small_annotation(human).to_dict())
@@ -345,15 +329,7 @@ def test_fuzz_any_edit_of_a_file_loads_or_is_refused_cleanly(small_text, fuzz_fi
         fuzz_file.write_bytes(data.draw(st.binary(max_size=64)))
     else:
         doc = json.loads(small_text)
-        paths = [p for p in _paths(doc) if p]
-        path = data.draw(st.sampled_from(paths))
-        parent = doc
-        for key in path[:-1]:
-            parent = parent[key]
-        if how == "replace":
-            parent[path[-1]] = data.draw(_json_values)
-        else:
-            del parent[path[-1]]
+        mutate(doc, data, how)
         fuzz_file.write_text(json.dumps(doc))
     try:
         ann = HandPairAnnotation.load(fuzz_file)

@@ -2,7 +2,6 @@
 load wrongly, and a fuzz of every reader with mutated files."""
 
 import contextlib
-import copy
 import json
 
 import numpy as np
@@ -13,6 +12,8 @@ from hypothesis import strategies as st
 from geodesics import ContactError, ContactPatch, ContactSet, farthest_pair_axis
 from geodesics.primitives import grid_plane
 from geodesics.schema import Fields, is_integer, is_number
+
+from .json_mutations import mutate
 
 
 @pytest.fixture(scope="module")
@@ -85,35 +86,18 @@ def test_fields_name_the_path():
 
 # ----------------------------------------------------------------------------------------- fuzz
 
-_JSON = st.recursive(
-    st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=5),
-    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=5), inner, max_size=4),
-    max_leaves=12,
+
+@settings(
+    derandomize=True,
+    max_examples=300,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
 )
-
-
-def _paths(value, prefix=()):
-    yield prefix
-    if isinstance(value, dict):
-        for k, v in value.items():
-            yield from _paths(v, (*prefix, k))
-    elif isinstance(value, list):
-        for i, v in enumerate(value[:3]):
-            yield from _paths(v, (*prefix, i))
-
-
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data())
 def test_a_mutated_contact_file_loads_or_raises_contact_error(contacts, plane, data):
-    """Any one value of a valid file replaced by any JSON value: the set loads (the value was as good)
-    or ContactError says why; nothing else escapes."""
-    original = contacts.to_dict()
-    document = copy.deepcopy(original)
-    paths = [p for p in _paths(document) if p]
-    path = data.draw(st.sampled_from(paths))
-    parent = document
-    for key in path[:-1]:
-        parent = parent[key]
-    parent[path[-1]] = data.draw(_JSON)
+    """Any one value of a valid file replaced by any JSON value, or deleted: the set loads (the value was
+    as good) or ContactError says why; nothing else escapes."""
+    document = contacts.to_dict()
+    mutate(document, data, data.draw(st.sampled_from(["replace", "delete"])))
     with contextlib.suppress(ContactError):
         ContactSet.from_dict(document, plane, remap=data.draw(st.booleans()))
