@@ -46,8 +46,9 @@ from geodesics.schema import Fields
 
 from ..errors import SolverError
 from ..rig import Rig
-from .annotations import MarkerAnnotation, keep_rows
+from .annotations import MarkerAnnotation
 from .motion import Contacts, MotionError
+from .transfer import keep_rows
 
 #: Metres to the centimetres of the authors' Maya scenes.
 CM = 100.0
