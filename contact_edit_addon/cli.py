@@ -375,7 +375,7 @@ def _retarget(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from solver import SolverError
-    from solver.retarget import annotations, pipeline, synthetic
+    from solver.retarget import annotate, annotations, pipeline, synthetic
     from solver.retarget.frames import HandSpec, RetargetWeights
     from solver.retarget.motion import Motion
 
@@ -391,7 +391,7 @@ def _retarget(args: argparse.Namespace) -> int:
         )
     else:
         source = synthetic.source_hand(motion.source_kind, motion.source_scale)
-        annotation = annotations.default_annotation(source, target.build())
+        annotation = annotate.default_annotation(source, target.build())
     weights = RetargetWeights(**dict(args.weight or ()))
     options = pipeline.RetargetOptions(
         weights=replace(weights, c=0.0) if args.no_contacts else weights,

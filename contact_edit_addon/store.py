@@ -5,12 +5,12 @@ and pairing files: a hand's and an object's sets together, what ``contact-edit p
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import bpy
 
 from geodesics import ContactError, ContactSet
-from geodesics.files import write_atomically
+from geodesics.files import read_json, write_atomically
+from geodesics.schema import Fields
 
 from . import bridge
 
@@ -105,16 +105,11 @@ def load_pairing(path, hand: bpy.types.Object, target: bpy.types.Object, remap: 
     """Give the hand and the object the contact sets of a pairing file. A file made for other meshes is
     refused with what it was made for, unless ``remap`` projects it onto these by position. Either both
     objects change or neither does."""
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise ContactError(f"{path}: cannot read a pairing file: {err}") from None
-    if not isinstance(data, dict) or data.get("format") != PAIRING_FORMAT or data.get("version") != 1:
-        raise ContactError(f'{path}: not a pairing file (expected "format": "{PAIRING_FORMAT}", version 1)')
+    file = Fields(read_json(path, "pairing file", ContactError), str(path), ContactError)
+    file.header(PAIRING_FORMAT, 1, "pairing file")
     sets = {}
     for key, obj in (("hand", hand), ("object", target)):
         source = f"{path} ({key} '{obj.name}')"
-        sets[key] = ContactSet.from_dict(data.get(key), bridge.trimesh(obj), remap=remap, source=source)
+        sets[key] = ContactSet.from_dict(file.data.get(key), bridge.trimesh(obj), remap=remap, source=source)
     save(hand, sets["hand"])
     save(target, sets["object"])

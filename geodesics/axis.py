@@ -82,7 +82,22 @@ class Axis:
             setattr(self, name, value)
 
     @classmethod
-    def _embedded(cls, mesh, points, lengths, turning, tangents) -> Axis:
+    def embedded(cls, mesh: TriMesh, points: SurfacePoints, lengths, turning, tangents) -> Axis:
+        """An axis from its embedding as stored (a contact file, a mirror image, a bend): its ``m``
+        points on ``mesh``, ``(m-1,)`` segment lengths, ``(m,)`` unit turning angles and ``(m,)`` unit
+        tangents. Nothing is traced; the shapes, lengths and unit lengths are checked."""
+        m = len(points)
+        lengths = np.asarray(lengths, np.float64)
+        turning, tangents = np.asarray(turning, np.complex128), np.asarray(tangents, np.complex128)
+        if m < 2 or lengths.shape != (m - 1,) or turning.shape != (m,) or tangents.shape != (m,):
+            raise ContactError(
+                f"the axis has {m} points but {lengths.size} lengths, {turning.size} turning angles "
+                f"and {tangents.size} tangents (expected m-1, m, m with m >= 2)"
+            )
+        if not np.all(np.isfinite(lengths) & (lengths > 0)):
+            raise ContactError("axis lengths must be positive and finite")
+        if np.any(np.abs(np.abs(turning) - 1) > 1e-9) or np.any(np.abs(np.abs(tangents) - 1) > 1e-9):
+            raise ContactError("axis turning angles and tangents must be unit complex numbers")
         axis = cls.__new__(cls)
         axis._set(mesh, points, lengths, turning, tangents)
         return axis
@@ -179,7 +194,7 @@ class Axis:
             rest = _lay_out(self.mesh, self.points[[index]], tangent, self.lengths[index:], turning[index:])
             tangents = np.concatenate([tangents, rest.tangents[1:]])
             points = SurfacePoints.concatenate([points, rest.points[np.arange(1, len(rest))]])
-        return Axis._embedded(self.mesh, points, self.lengths, turning, tangents)
+        return Axis.embedded(self.mesh, points, self.lengths, turning, tangents)
 
 
 def _lay_out(mesh, start, direction, lengths, turning) -> Axis:
@@ -209,7 +224,7 @@ def _lay_out(mesh, start, direction, lengths, turning) -> Axis:
         points.append(trace.points)
         tangents[first + 1 : last + 1] = trace.directions * turning[first + 1 : last + 1]
         first, here = last, trace.points[[len(trace.points) - 1]]
-    return Axis._embedded(mesh, SurfacePoints.concatenate(points), lengths, turning, tangents)
+    return Axis.embedded(mesh, SurfacePoints.concatenate(points), lengths, turning, tangents)
 
 
 def _segments(mesh: TriMesh, p: SurfacePoints, q: SurfacePoints):

@@ -27,6 +27,7 @@ from .maps import geodesic_path
 from .mesh import TriMesh
 from .patch import ContactPatch
 from .points import SurfacePoints
+from .schema import Fields
 from .trace import exp_map
 
 FORMAT = "contact-edit/contacts"
@@ -305,13 +306,9 @@ class ContactSet:
     @classmethod
     def from_dict(cls, data, mesh: TriMesh, remap: bool = False, source: str = "contact data") -> ContactSet:
         """Validate a contact file's content and build the set (see :meth:`load`)."""
-        if not isinstance(data, dict) or data.get("format") != FORMAT:
-            raise ContactError(f'{source}: not a contact file (expected "format": "{FORMAT}")')
-        if type(data.get("version")) is not int or data["version"] != VERSION:  # true == 1 in Python
-            raise ContactError(
-                f"{source}: version {data.get('version')!r} is not supported (this build reads {VERSION})"
-            )
-        info = _field(data, "mesh", dict, source)
+        file = Fields(data, source, ContactError, "a contact file (a JSON object)")
+        file.header(FORMAT, VERSION, "contact file")
+        info = file.object("mesh").data
         same = (
             info.get("vertices") == mesh.n_vertices
             and info.get("faces") == mesh.n_faces
@@ -324,24 +321,17 @@ class ContactSet:
                 f"({mesh.n_vertices} vertices, {mesh.n_faces} faces, hash {mesh.topology_hash[:12]}…); "
                 "load it with remap to project it"
             )
-        entries = _field(data, "patches", list, source)
         patches, links, pairs = {}, {}, {}
-        for i, entry in enumerate(entries):
-            where = f"{source}: patch {i}"
-            if not isinstance(entry, dict):
-                raise ContactError(f"{where}: expected an object")
-            name = _field(entry, "name", str, where)
-            where = f"{source}: patch '{name}'"
+        for entry in file.objects("patches"):
+            name = entry.string("name")
+            entry = entry.renamed(f"{source}: patch '{name}'")
             if name in patches:
-                raise ContactError(f"{where}: the name is used twice")
-            try:
-                patches[name] = _patch(entry, mesh, remap=not same)
-            except (MeshError, ContactError, TypeError, ValueError, KeyError) as err:
-                raise ContactError(f"{where}: {err}") from None
-            if entry.get("parent") is not None:
-                links[name] = _link(entry, where)
-            if entry.get("pair") is not None:
-                pairs[name] = _field(entry, "pair", str, where)
+                entry.fail("the name is used twice")
+            patches[name] = _patch(entry, mesh, remap=not same)
+            if "parent" in entry:
+                links[name] = _link(entry)
+            if "pair" in entry:
+                pairs[name] = entry.string("pair")
         for child, link in links.items():
             if link.parent not in patches:
                 raise ContactError(
@@ -364,83 +354,45 @@ def _complex_list(values) -> list:
     return np.stack([values.real, values.imag], axis=-1).tolist()
 
 
-def _field(entry: dict, key: str, kind, where: str):
-    if key not in entry:
-        raise ContactError(f"{where}: the field '{key}' is missing")
-    value = entry[key]
-    if not isinstance(value, kind) or isinstance(value, bool):
-        raise ContactError(
-            f"{where}: the field '{key}' should be a {kind.__name__}, got {type(value).__name__}"
-        )
-    return value
-
-
-def _complex_array(values, where: str) -> np.ndarray:
+def _surface_points(data: Fields, mesh: TriMesh) -> SurfacePoints:
+    faces, bary = data.indices("faces"), data.numbers("bary", (None, 3), finite=False)
     try:
-        a = np.asarray(values, dtype=np.float64)
-    except (TypeError, ValueError):
-        a = np.empty(0)
-    if a.ndim != 2 or a.shape[1] != 2 or not np.all(np.isfinite(a)):
-        raise ContactError(f"{where} must be a list of finite [real, imaginary] pairs")
-    return a[:, 0] + 1j * a[:, 1]
+        return SurfacePoints(faces, bary).validate(mesh)
+    except MeshError as err:
+        data.fail(str(err))
 
 
-def _indices(values, where: str) -> np.ndarray:
-    """A JSON list of integers as int64, checked before numpy sees it: 1.5 or true would silently become
-    an index, 2**70 would overflow."""
-    if not isinstance(values, list) or not all(type(v) is int and -(2**63) <= v < 2**63 for v in values):
-        raise ContactError(f"{where} must be a list of integer indices")
-    return np.array(values, dtype=np.int64)
-
-
-def _surface_points(data, mesh: TriMesh, where: str) -> SurfacePoints:
-    if not isinstance(data, dict):
-        raise ContactError(f"{where} must be an object with 'faces' and 'bary'")
-    faces = _indices(_field(data, "faces", list, where), f"{where}.faces")
-    points = SurfacePoints(faces, np.asarray(_field(data, "bary", list, where), dtype=np.float64))
-    return points.validate(mesh)
-
-
-def _patch(entry: dict, mesh: TriMesh, remap: bool) -> ContactPatch:
-    axis_data = _field(entry, "axis", dict, "the patch")
-    if remap:
-        axis_points = SurfacePoints.nearest(mesh, np.asarray(axis_data["positions"], dtype=np.float64))
-        points = SurfacePoints.nearest(mesh, np.asarray(entry["positions"], dtype=np.float64))
-        return ContactPatch(mesh, points, Axis(mesh, axis_points))
-    axis_points = _surface_points(axis_data["points"], mesh, "axis.points")
-    points = _surface_points(entry["points"], mesh, "points")
-    m, k = len(axis_points), len(points)
-    lengths = np.asarray(axis_data["lengths"], dtype=np.float64)
-    turning = _complex_array(axis_data["turning"], "axis.turning")
-    tangents = _complex_array(axis_data["tangents"], "axis.tangents")
-    binding = _indices(_field(entry, "binding", list, "the patch"), "binding")
-    coords = _complex_array(entry["coords"], "coords")
-    if m < 2 or lengths.shape != (m - 1,) or turning.shape != (m,) or tangents.shape != (m,):
-        raise ContactError(
-            f"the axis has {m} points but {lengths.size} lengths, {turning.size} turning angles "
-            f"and {tangents.size} tangents (expected m-1, m, m with m >= 2)"
+def _patch(entry: Fields, mesh: TriMesh, remap: bool) -> ContactPatch:
+    axis = entry.object("axis")
+    if remap:  # rebuilt from the saved positions
+        axis_positions, positions = (
+            axis.numbers("positions", (None, 3)),
+            entry.numbers("positions", (None, 3)),
         )
-    if not np.all(np.isfinite(lengths) & (lengths > 0)):
-        raise ContactError("axis lengths must be positive and finite")
-    if np.any(np.abs(np.abs(turning) - 1) > 1e-9) or np.any(np.abs(np.abs(tangents) - 1) > 1e-9):
-        raise ContactError("axis turning angles and tangents must be unit complex numbers")
-    if binding.shape != (k,) or coords.shape != (k,) or np.any((binding < 0) | (binding >= m)):
-        raise ContactError(
-            f"binding and coords must give one axis point index in 0..{m - 1} and one complex "
-            f"number per patch point ({k})"
-        )
-    axis = Axis._embedded(mesh, axis_points, lengths, turning, tangents)
-    patch = ContactPatch.__new__(ContactPatch)
-    patch._set(mesh, points, axis, binding, coords)
-    return patch
+        try:
+            on_mesh = Axis(mesh, SurfacePoints.nearest(mesh, axis_positions))
+            return ContactPatch(mesh, SurfacePoints.nearest(mesh, positions), on_mesh)
+        except (MeshError, ContactError) as err:
+            entry.fail(str(err))
+    axis_points, points = (
+        _surface_points(axis.object("points"), mesh),
+        _surface_points(entry.object("points"), mesh),
+    )
+    lengths, turning, tangents = (
+        axis.numbers("lengths", (None,)),
+        axis.complex("turning"),
+        axis.complex("tangents"),
+    )
+    binding, coords = entry.indices("binding"), entry.complex("coords")
+    try:
+        embedded = Axis.embedded(mesh, axis_points, lengths, turning, tangents)
+        return ContactPatch.parameterized(embedded, points, binding, coords)
+    except ContactError as err:
+        entry.fail(str(err))
 
 
-def _link(entry: dict, where: str) -> Link:
-    parent = _field(entry, "parent", str, where)
-    data = _field(entry, "link", dict, where)
-    length = data.get("length")
-    if not isinstance(length, (int, float)) or not np.isfinite(length) or length <= 0:
-        raise ContactError(f"{where}: link.length must be a positive number")
-    leave = _complex_array([data.get("leave")], f"{where}: link.leave")[0]
-    arrive = _complex_array([data.get("arrive")], f"{where}: link.arrive")[0]
-    return Link(parent, float(length), complex(leave), complex(arrive))
+def _link(entry: Fields) -> Link:
+    data = entry.object("link")
+    length = data.number("length", positive=True)
+    leave, arrive = (complex(*data.numbers(key, (2,))) for key in ("leave", "arrive"))
+    return Link(entry.string("parent"), length, leave, arrive)

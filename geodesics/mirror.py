@@ -669,7 +669,7 @@ def mirror_contacts(
         patch = contacts[name]
         axis = patch.axis
         tangents = mirror.map_directions(axis.points, axis.tangents)
-        mirrored_axis = Axis._embedded(
+        mirrored_axis = Axis.embedded(
             target, mirror.map_points(axis.points), axis.lengths, np.conj(axis.turning), tangents
         )
         patches[new[name]] = ContactPatch(target, mirror.map_points(patch.points), mirrored_axis)

@@ -85,6 +85,26 @@ class ContactPatch:
             faces, bary = keep.points.faces.copy(), keep.points.bary.copy()
             faces[redo], bary[redo] = trace.points.faces, trace.points.bary
             points = SurfacePoints(faces, bary)
+        return cls.parameterized(axis, points, binding, coords)
+
+    @classmethod
+    def parameterized(cls, axis: Axis, points: SurfacePoints, binding, coords) -> ContactPatch:
+        """A patch from its parameterization as stored (a contact file, a subset): per point ``k`` of
+        ``points`` (on ``axis.mesh``), the index ``binding[k]`` of its axis point and its complex offset
+        ``coords[k]`` in that point's tangent frame. Nothing is traced; the shapes and indices are
+        checked."""
+        binding, coords = np.asarray(binding), np.asarray(coords, np.complex128)
+        k, m = len(points), len(axis)
+        if (
+            binding.shape != (k,)
+            or coords.shape != (k,)
+            or not np.issubdtype(binding.dtype, np.integer)
+            or np.any((binding < 0) | (binding >= m))
+        ):
+            raise ContactError(
+                f"binding and coords must give one axis point index in 0..{m - 1} and one complex "
+                f"number per patch point ({k})"
+            )
         patch = cls.__new__(cls)
         patch._set(axis.mesh, points, axis, binding, coords)
         return patch
@@ -141,9 +161,9 @@ class ContactPatch:
         index = np.arange(len(self))[np.asarray(keep)]
         if index.size == 0:
             raise ContactError("that would leave the patch without points")
-        patch = ContactPatch.__new__(ContactPatch)
-        patch._set(self.mesh, self.points[index], self.axis, self.binding[index], self.coords[index])
-        return patch
+        return ContactPatch.parameterized(
+            self.axis, self.points[index], self.binding[index], self.coords[index]
+        )
 
     def mirrored_onto(self, axis: Axis) -> ContactPatch:
         """This patch's mirror image around ``axis``: the axis of an earlier transfer of it, however that

@@ -123,7 +123,7 @@ def test_pose_command_poses_a_copy_and_never_writes_its_input(demo, tmp_path):
     bad = contact_edit(
         "pose", str(scene), "--contacts", str(corrupt), "-o", "bad.blend", cwd=tmp_path, user_dir=user
     )
-    assert bad.returncode == 1 and "cannot read a pairing file" in bad.stderr
+    assert bad.returncode == 1 and "cannot read the pairing file" in bad.stderr
     assert len(bad.stderr.splitlines()) == 1 and bad.stdout == ""  # one line, no traceback
     missing = contact_edit(
         "pose", str(scene), "--hand", "Nope", "-o", "bad.blend", cwd=tmp_path, user_dir=user

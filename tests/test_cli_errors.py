@@ -81,12 +81,12 @@ def interrupt(*args, **kwargs):
 
 def fake_motion(monkeypatch, frames=44):
     """Motion.load and the default annotation, without reading or building anything."""
-    from solver.retarget import annotations
+    from solver.retarget import annotate
     from solver.retarget.motion import Motion
 
     motion = SimpleNamespace(n_frames=frames, source_kind="human", source_scale=1.0, fps=120.0)
     monkeypatch.setattr(Motion, "load", staticmethod(lambda path: motion))
-    monkeypatch.setattr(annotations, "default_annotation", lambda source, target: None)
+    monkeypatch.setattr(annotate, "default_annotation", lambda source, target: None)
     return motion
 
 

@@ -145,7 +145,7 @@ def test_files_for_another_mesh_are_refused_unless_remapped(hand, tmp_path):
     [
         (lambda d: d.update(format="something else"), "not a contact file"),
         (lambda d: d.update(version=99), "version 99 is not supported"),
-        (lambda d: d.pop("patches"), "'patches' is missing"),
+        (lambda d: d.pop("patches"), "patches is missing"),
         (
             lambda d: d["patches"][0].update(points={"faces": [10**9], "bary": [[1, 0, 0]]}),
             "patch 'palm'.*faces",
@@ -171,7 +171,7 @@ def test_files_for_another_mesh_are_refused_unless_remapped(hand, tmp_path):
             "points.faces must be a list of integer indices",
         ),
         (lambda d: d["patches"][0].update(binding=[0.5] * 3), "binding must be a list of integer indices"),
-        (lambda d: d["patches"][0].pop("binding"), "'binding' is missing"),
+        (lambda d: d["patches"][0].pop("binding"), "patch 'palm'.binding is missing"),
     ],
 )
 def test_malformed_files_get_clear_errors(hand, tmp_path, change, message):

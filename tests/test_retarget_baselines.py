@@ -8,10 +8,9 @@ import pytest
 
 from solver import SolverError
 from solver.hands import make_hand
-from solver.retarget import annotations as an
+from solver.retarget import annotate, synthetic
 from solver.retarget import baselines as bl
 from solver.retarget import frames as fr
-from solver.retarget import synthetic
 
 
 @pytest.fixture(scope="module")
@@ -23,7 +22,7 @@ def motion():
 def same(motion):
     """Human -> human on 10 frames (0, 12, ..., 108): the source DOF curves are the ground truth."""
     human = make_hand("human")
-    ann = an.default_annotation(human, human)
+    ann = annotate.default_annotation(human, human)
     sub = motion.select(range(0, 120, 12))
     tasks = fr.build_tasks(sub, fr.HandSpec("human"), ann)
     return ann, tasks, np.asarray(sub.source_theta)
@@ -33,7 +32,7 @@ def same(motion):
 def witch(motion):
     """Human -> witch on 8 contact frames (24, 34, ..., 94): ours (root pass, then full pass), and both
     baselines with our root pass as their "ground-truth" root."""
-    ann = an.default_annotation(make_hand("human"), make_hand("witch"))
+    ann = annotate.default_annotation(make_hand("human"), make_hand("witch"))
     sub = motion.select(range(24, 104, 10))
     tasks = fr.build_tasks(sub, fr.HandSpec("witch"), ann)
     roots = fr.solve_frames(tasks)

@@ -10,9 +10,8 @@ import pytest
 from geodesics import SurfacePoints
 from geodesics.rigid import rigid_fit
 from solver import SolverError
-from solver.retarget import annotations as an
+from solver.retarget import annotate, synthetic
 from solver.retarget import frames as fr
-from solver.retarget import synthetic
 from solver.rotations import euler_to_matrix
 
 #: Frames of the 120-frame cylinder grasp: approach (no contacts), grasp, hold (contacts), release.
@@ -40,7 +39,7 @@ def clip(motion):
 
 @pytest.fixture(scope="module")
 def annotation(hand):
-    return an.default_annotation(hand, hand)
+    return annotate.default_annotation(hand, hand)
 
 
 @pytest.fixture(scope="module")
@@ -257,7 +256,7 @@ def test_markers_only_frames_are_solved_on_markers(estimated):
     for r in (roots[0], fulls[0], fulls[-1]):
         assert r.contact_distances.shape == (0,) and np.isnan(r.contact_distance)
         assert "distance" not in r.terms and "normal" not in r.terms and "marker" in r.terms
-        assert r.marker_distances.shape == (19 * an.MARKER_POINTS,)
+        assert r.marker_distances.shape == (19 * annotate.MARKER_POINTS,)
     assert fulls[0].marker_distance < 1e-4  # measured 0.02 mm
     assert set(fulls[1].terms) >= {"distance", "normal", "marker", "prior"}
 

@@ -19,8 +19,7 @@ from scipy.spatial.transform import Rotation
 from geodesics import TriMesh
 from solver.errors import SolverError
 from solver.hands import make_hand
-from solver.retarget import annotations as an
-from solver.retarget import synthetic
+from solver.retarget import annotate, synthetic, transfer
 from solver.retarget.frames import HandSpec, RetargetWeights
 from solver.retarget.pipeline import RetargetOptions, retarget
 from solver.sdf import MeshSDF
@@ -129,7 +128,7 @@ def same_hand_folder(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def same_hand(source, same_hand_folder):
-    ann = an.default_annotation(make_hand("human"), make_hand("human"))
+    ann = annotate.default_annotation(make_hand("human"), make_hand("human"))
     return retarget(source, HandSpec("human", 1.0), ann, NO_METRICS, folder=same_hand_folder, workers=WORKERS)
 
 
@@ -142,7 +141,7 @@ def targets(source):
     def get(kind, scale, options=NO_METRICS):
         key = kind, scale, options
         if key not in cache:
-            ann = an.default_annotation(make_hand("human"), make_hand(kind, scale))
+            ann = annotate.default_annotation(make_hand("human"), make_hand(kind, scale))
             cache[key] = retarget(source, HandSpec(kind, scale), ann, options, workers=WORKERS)
         return cache[key]
 
@@ -256,10 +255,10 @@ def test_other_hands_against_the_contacts_only_floor(targets, kind, scale):
 def test_cyclic_human_witch_human(source, targets):
     witch = targets("witch", 1.0)
     K = len(source.hand_contacts)
-    original = an.TransferredContacts(
+    original = transfer.TransferredContacts(
         hand_contacts=source.hand_contacts, object_contacts=source.object_contacts, kept=np.ones(K, bool)
     )
-    ann = an.default_annotation(make_hand("witch"), make_hand("human"))
+    ann = annotate.default_annotation(make_hand("witch"), make_hand("human"))
     back = retarget(witch.motion, HandSpec("human", 1.0), ann, NO_METRICS, workers=WORKERS, contacts=original)
     length = make_hand("human").length
     fingers, loc, rot, palm_loc, palm_rot, vertices, contact = _errors_against(back, source)
@@ -315,7 +314,7 @@ def test_ablation_without_contacts(targets):
 
 @pytest.mark.slow
 def test_ablation_without_root_pass(source, same_hand):
-    ann = an.default_annotation(make_hand("human"), make_hand("human"))
+    ann = annotate.default_annotation(make_hand("human"), make_hand("human"))
     options = RetargetOptions(root_pass=False, refine=False, intersections=False)
     r = retarget(source, HandSpec("human", 1.0), ann, options, workers=WORKERS)
     truth = source.source_theta
@@ -353,9 +352,9 @@ def bimanual():
     # hands that interact only with the object).
     human, human_left = make_hand("human"), synthetic.source_hand("human-left")
     r_right = retarget(
-        right, HandSpec("human"), an.default_annotation(human, human), NO_METRICS, workers=WORKERS
+        right, HandSpec("human"), annotate.default_annotation(human, human), NO_METRICS, workers=WORKERS
     )
-    ann_left = an.default_annotation(human_left, human_left)
+    ann_left = annotate.default_annotation(human_left, human_left)
     r_left = retarget(left, HandSpec("human-left"), ann_left, NO_METRICS, workers=WORKERS)
     bar = BAR * human.length
     cr, cl = _median_contact(r_right.contact_distance), _median_contact(r_left.contact_distance)
@@ -409,7 +408,7 @@ def test_resume_and_foreign_folder(source, same_hand, same_hand_folder):
     for p in files[3:48:15]:
         p.unlink()
     solved = []
-    ann = an.default_annotation(make_hand("human"), make_hand("human"))
+    ann = annotate.default_annotation(make_hand("human"), make_hand("human"))
     again = retarget(
         source, HandSpec("human", 1.0), ann, NO_METRICS, folder=same_hand_folder, workers=WORKERS,
         progress=lambda stage, done, total: solved.append((stage, done, total)),
@@ -442,7 +441,7 @@ def test_a_whole_manipulation_in_60_frames_ends_soon_and_never_silently_misses()
     from solver.retarget.refine import PATIENCE
 
     motion = synthetic.generate("mug", frames=60, seed=0)
-    ann = an.default_annotation(make_hand("human"), make_hand("witch"))
+    ann = annotate.default_annotation(make_hand("human"), make_hand("witch"))
     steps = []
     r = retarget(
         motion, HandSpec("witch"), ann, NO_METRICS, workers=WORKERS,

@@ -13,7 +13,8 @@ result.theta, result.contact_distance, result.motion.save("witch.npz")
 """
 
 from . import synthetic
-from .annotations import AnnotationError, HandPairAnnotation, default_annotation, transfer_motion
+from .annotate import default_annotation
+from .annotations import AnnotationError, HandPairAnnotation
 from .frames import FrameResult, FrameTask, HandSpec, RetargetWeights, estimate, solve_frame
 from .grab import GrabError, load_grab, save_grab
 from .interchange import (
@@ -28,6 +29,7 @@ from .interchange import (
 from .motion import Contacts, Motion, MotionError
 from .pairing import pair_motion
 from .pipeline import Retarget, RetargetOptions, retarget, save_result
+from .transfer import transfer_motion
 
 __all__ = [
     "AnnotationError",

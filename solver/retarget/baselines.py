@@ -10,7 +10,7 @@ callback of :func:`.refine.refine_trajectory`, keeping the given root).
 
 **Fingertip keypoint tracking** (Qin et al. 2022; "equivalent to Equation (3) with λc = 0"):
 :func:`keypoint_tasks` keeps only the fingertip markers of the annotation (``<finger>_tip``, see
-:func:`.annotations.hand_markers`: the target's fingertip markers track the source's fingertip markers)
+:func:`.annotate.hand_markers`: the target's fingertip markers track the source's fingertip markers)
 and solves Eq. 3 without the contact terms (table and prior stay) through :func:`.frames.solve_frame`,
 the root fixed (``FrameTask.free``). The contacts are left out of those tasks rather than weighted by
 zero: their terms would be exactly zero and only cost evaluations.

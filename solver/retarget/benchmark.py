@@ -17,7 +17,7 @@ import numpy as np
 
 from ..hands import make_hand
 from . import synthetic
-from .annotations import default_annotation
+from .annotate import default_annotation
 from .frames import HandSpec
 from .pipeline import RetargetOptions, retarget
 

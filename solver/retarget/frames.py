@@ -459,14 +459,14 @@ def build_tasks(
     weights : RetargetWeights, optional
     hand_contacts, object_contacts : Contacts, optional
         Contacts already transferred to the target hand and the object contacts paired with them
-        (e.g. :func:`.annotations.transfer_motion`'s). Default: transferred here.
+        (e.g. :func:`.transfer.transfer_motion`'s). Default: transferred here.
     frames : iterable of int, optional
     use_table : bool
         Include the motion's table (Eq. 6) when it has one.
     **options
         Further :class:`FrameTask` fields (``prior``, ``max_evaluations``, ``algorithm``, ...).
     """
-    from .annotations import transfer_motion
+    from .transfer import transfer_motion
 
     target = _hand(hand)
     weights = weights or RetargetWeights()

@@ -42,11 +42,13 @@ from scipy.spatial.transform import Rotation
 from geodesics import MeshError, SurfacePoints, TriMesh
 from geodesics.files import read_json, write_atomically
 from geodesics.point_strings import GeometryCentralIndex
+from geodesics.schema import Fields
 
 from ..errors import SolverError
 from ..rig import Rig
-from .annotations import MarkerAnnotation, keep_rows
+from .annotations import MarkerAnnotation
 from .motion import Contacts, MotionError
+from .transfer import keep_rows
 
 #: Metres to the centimetres of the authors' Maya scenes.
 CM = 100.0
@@ -60,22 +62,10 @@ class InterchangeError(SolverError):
 # ------------------------------------------------------------------------------ JSON reading
 
 
-def _read_json(path, what: str) -> dict:
-    data = read_json(path, f"{what} file", InterchangeError)
-    if not isinstance(data, dict):
-        raise InterchangeError(f"{path}: a {what} file holds a JSON object, not {type(data).__name__}")
-    return data
-
-
-def _field(data: dict, key: str, kind: type, where: str):
-    """``data[key]``, checked to be of JSON type ``kind`` (a bool is not an int here)."""
-    if key not in data:
-        raise InterchangeError(f"{where}: '{key}' is missing")
-    value = data[key]
-    if not isinstance(value, kind) or (kind in (int, float) and isinstance(value, bool)):
-        names = {str: "a string", int: "an integer", list: "a list", float: "a number", dict: "an object"}
-        raise InterchangeError(f"{where}: '{key}' should be {names[kind]}, got {json.dumps(value)[:40]}")
-    return value
+def _read_json(path, what: str) -> Fields:
+    return Fields(
+        read_json(path, f"{what} file", InterchangeError), str(path), InterchangeError, "a JSON object"
+    )
 
 
 def _check_mesh_name(found: str, expected: str | None, path) -> None:
@@ -173,33 +163,21 @@ class ContactSequence:
             out of range.
         """
         data = _read_json(path, "contacts")
-        name = _field(data, "meshName", str, str(path))
+        name = data.string("meshName")
         _check_mesh_name(name, mesh_name, path)
-        entries = _field(data, "data", list, str(path))
         index = GeometryCentralIndex(mesh)
         frames, points, omitted = [], [], []
-        for i, entry in enumerate(entries):
-            where = f"{path}: data[{i}]"
-            if not isinstance(entry, dict):
-                raise InterchangeError(f"{where} should be an object with 'frame' and 'contacts'")
-            frame = _field(entry, "frame", int, where)
+        for entry in data.objects("data"):
+            frame = entry.integer("frame")
             f = frame - first_frame
             if f < 0 or (n_frames is not None and f >= n_frames):
                 last = "" if n_frames is None else f" to {first_frame + n_frames - 1}"
-                raise InterchangeError(
-                    f"{where}: frame {frame} is outside the motion's frames {first_frame}{last}"
-                )
-            where = f"{path}: frame {frame}"
-            p = _points(index, _field(entry, "contacts", list, where), f"{where}'s contacts")
+                entry.fail(f"frame {frame} is outside the motion's frames {first_frame}{last}")
+            entry = entry.renamed(f"{path}: frame {frame}")
+            p = _points(index, entry.list("contacts"), f"{entry.where}'s contacts")
             flags = np.zeros(len(p), bool)
             if "omissionIndices" in entry:
-                ids = _field(entry, "omissionIndices", list, where)
-                bad = [x for x in ids if type(x) is not int or not 0 <= x < len(p)]
-                if bad:
-                    raise InterchangeError(
-                        f"{where}: omissionIndices {bad[:5]} are not indices of its {len(p)} contacts"
-                    )
-                flags[ids] = True
+                flags[entry.indices("omissionIndices", len(p))] = True
             frames.append(f)
             points.append(p)
             omitted.append(flags)
@@ -240,19 +218,16 @@ def load_markers(path, mesh: TriMesh, mesh_name: str | None = None) -> dict[str,
         name, a marker without points, an unreadable point, a different ``mesh_name``.
     """
     data = _read_json(path, "virtual markers")
-    name = _field(data, "meshName", str, str(path))
+    name = data.string("meshName")
     _check_mesh_name(name, mesh_name, path)
     index = GeometryCentralIndex(mesh)
     markers: dict[str, SurfacePoints] = {}
-    for i, entry in enumerate(_field(data, "data", list, str(path))):
-        where = f"{path}: data[{i}]"
-        if not isinstance(entry, dict):
-            raise InterchangeError(f"{where} should be an object with 'name' and 'MarkerPoints'")
-        marker = _field(entry, "name", str, where)
+    for entry in data.objects("data"):
+        marker = entry.string("name")
         if not marker or marker in markers:
-            raise InterchangeError(f"{where}: marker name {marker!r} is empty or repeated")
+            entry.fail(f"marker name {marker!r} is empty or repeated")
         where = f"{path}: marker {marker!r}"
-        strings = _field(entry, "MarkerPoints", list, where)
+        strings = entry.renamed(where).list("MarkerPoints")
         if not strings:
             raise InterchangeError(f"{where} has no points")
         markers[marker] = _points(index, strings, f"{where}'s points")
@@ -438,10 +413,10 @@ class KeyframeMotion:
         """Read a ``.kmexp`` file, checking every field's type and length (errors name the frame)."""
         data = _read_json(path, "kmexp")
         where = str(path)
-        framerate = _field(data, "framerate", int, where)
-        names = _field(data, "jointNames", list, where)
-        dofs = _field(data, "jointDofs", list, where)
-        if not all(isinstance(n, str) for n in names) or len(set(names)) != len(names):
+        framerate = data.integer("framerate")
+        names = data.strings("jointNames")
+        dofs = data.list("jointDofs")
+        if len(set(names)) != len(names):
             raise InterchangeError(f"{where}: jointNames must be distinct strings")
         if (
             len(dofs) != len(names)
@@ -455,33 +430,19 @@ class KeyframeMotion:
             )
         table = None
         if "table" in data:
-            table = _numbers(_field(data, "table", list, where), 10, f"{where}: table")
+            table = data.numbers("table", (10,))
         frames, obj, hand = [], [], []
-        for i, entry in enumerate(_field(data, "data", list, where)):
-            at = f"{where}: data[{i}]"
-            if not isinstance(entry, dict):
-                raise InterchangeError(f"{at} should be an object with 'frame', 'object' and 'hand'")
-            frames.append(_field(entry, "frame", int, at))
-            at = f"{where}: frame {frames[-1]}"
-            obj.append(_numbers(_field(entry, "object", list, at), 7, f"{at}: object"))
-            hand.append(_numbers(_field(entry, "hand", list, at), sum(dofs), f"{at}: hand"))
+        for entry in data.objects("data"):
+            frames.append(entry.integer("frame"))
+            entry = entry.renamed(f"{where}: frame {frames[-1]}")
+            obj.append(entry.numbers("object", (7,)))
+            hand.append(entry.numbers("hand", (sum(dofs),)))
         if not frames:
             raise InterchangeError(f"{where} has no frames")
         return cls(
             framerate, tuple(names), tuple(dofs), table, np.array(frames, np.int64),
             np.array(obj), np.array(hand),
         )  # fmt: skip
-
-
-def _numbers(values: list, count: int, where: str) -> np.ndarray:
-    if len(values) != count or not all(
-        isinstance(v, (int, float)) and not isinstance(v, bool) for v in values
-    ):
-        raise InterchangeError(f"{where} should be {count} numbers, got {len(values)} values")
-    a = np.array(values, np.float64)
-    if not np.all(np.isfinite(a)):
-        raise InterchangeError(f"{where} holds values that are not finite")
-    return a
 
 
 def _poses(rig: Rig, theta) -> np.ndarray:

@@ -3,7 +3,7 @@
 Stages, each with its own progress (``progress(stage, done, total)``, stages in :data:`STAGES`):
 
 1. ``transfer`` — the motion's hand contacts move to the target hand through the annotated contact
-   atlas, all frames in one call (§3.3.2, :func:`.annotations.transfer_motion`).
+   atlas, all frames in one call (§3.3.2, :func:`.transfer.transfer_motion`).
 2. ``root`` and ``full`` — every frame solved on its own (§3.4.2): the root alone, then the full pose
    seeded by it (:mod:`.frames`).
 3. ``refine`` — acceleration violations replaced by interpolation and re-solved (§3.4.3,
@@ -51,7 +51,7 @@ from geodesics.files import write_atomically
 from ..errors import SolverError
 from ..rig import Rig
 from ..skinning import SkinnedMesh
-from .annotations import HandPairAnnotation, TransferredContacts, transfer_motion
+from .annotations import HandPairAnnotation
 from .baselines import Table, keypoint_tasks, keyvector_tasks, reseeded, solve_task
 from .executor import FrameStore, run_frames
 from .frames import (
@@ -66,6 +66,7 @@ from .metrics import IntersectionMeter, Intersections, mean_distances
 from .motion import Motion
 from .refine import E_ACC, MAX_ITERATIONS, MIN_PROGRESS, RefineLog, refine_trajectory, remaining_work
 from .spline import SplineFit, fit_bspline
+from .transfer import TransferredContacts, transfer_motion
 
 #: The stages a retarget reports progress for, in order.
 STAGES = ("transfer", "root", "full", "refine", "spline", "baselines", "metrics")
