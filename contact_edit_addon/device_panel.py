@@ -17,6 +17,17 @@ def joint_label(state: DeviceState, joint: int) -> str:
     return f"Joint {joint} ({colour_name(colour)})" if colour is not None else f"Joint {joint}"
 
 
+def draw_mapping(layout, binding) -> None:
+    """How a scalar binding (or the operator making one) maps its joint's angle to the number it sets."""
+    layout.prop(binding, "channel")
+    row = layout.row(align=True)
+    row.prop(binding, "source_min")
+    row.prop(binding, "source_max")
+    row = layout.row(align=True)
+    row.prop(binding, "target_min")
+    row.prop(binding, "target_max")
+
+
 class CONTACT_EDIT_UL_device_bindings(bpy.types.UIList):
     """One row per binding: the joint and what it drives."""
 
@@ -108,13 +119,7 @@ class VIEW3D_PT_contact_edit_device(SubPanel, bpy.types.Panel):
             box.prop_search(binding, "shape_key", keys, "key_blocks")
         elif binding.target == "PROPERTY":
             box.prop(binding, "data_path")
-        box.prop(binding, "channel")
-        row = box.row(align=True)
-        row.prop(binding, "source_min")
-        row.prop(binding, "source_max")
-        row = box.row(align=True)
-        row.prop(binding, "target_min")
-        row.prop(binding, "target_max")
+        draw_mapping(box, binding)
 
     @staticmethod
     def draw_live_joints(layout, settings, session) -> None:

@@ -1,9 +1,15 @@
 """A live puppet device driving one armature: the scene's bindings as a :class:`tangible.Puppet`, the
 port or the built-in simulator, and :class:`Session`, which applies the device's latest state on each tick.
+The operators that start, tick and stop sessions are in :mod:`contact_edit_addon.operators.device`.
 
-Sessions are kept here per armature *name* (never a Blender reference, so undo cannot leave them
-dangling). Joints that fall silent keep their bones and numbers where they were (the pose freezes) and
-the status line says which; stopping gives back what the device touched.
+Sessions are kept here (``sessions``) per armature *name* (never a Blender reference, so undo cannot leave
+them dangling). A session owns the :class:`tangible.SerialReader` (and the :class:`tangible.Simulator`
+behind it, if simulated) and the puppet. :meth:`Session.tick` applies the device's latest state once, on
+the main thread: the bound bones take the joints' rotations, the other bones follow the sample poses by
+pose interpolation, shape keys and properties take their joints' angles, and in record mode the pose is
+keyed on every new frame. Joints that fall silent (unplugged, a subtree without power, the port gone) keep
+their bones and numbers where they were — the pose freezes — and the status line says which; stopping
+gives back what the device touched.
 """
 
 from __future__ import annotations

@@ -46,6 +46,15 @@ def wrapped(context, text: str) -> list[str]:
     return lines
 
 
+def draw_message(context, layout, texts, icon: str) -> None:
+    """A message in a box, ``texts`` each starting a line and wrapped to the sidebar's width, the icon on
+    the first line."""
+    box = layout.box().column(align=True)
+    lines = [line for text in texts for line in wrapped(context, text)]
+    for i, line in enumerate(lines):
+        box.label(text=line, icon=icon if i == 0 else "BLANK1")
+
+
 class ContactTab:
     """Where the panels live: the Contact tab of the 3D viewport's sidebar."""
 
@@ -145,10 +154,7 @@ class VIEW3D_PT_contact_edit_pose(SubPanel, bpy.types.Panel):
         ).keyframe = settings.keyframe
         row.prop(settings, "keyframe", text="Key", toggle=True, icon="KEY_HLT")
         if settings.last_solve:
-            box = layout.box().column(align=True)
-            lines = [line for clause in settings.last_solve.split("; ") for line in wrapped(context, clause)]
-            for i, line in enumerate(lines):
-                box.label(text=line, icon="INFO" if i == 0 else "BLANK1")
+            draw_message(context, layout, settings.last_solve.split("; "), "INFO")
         header, body = layout.panel("contact_edit_weights", default_closed=True)
         header.label(text="Weights")
         header.operator("contact_edit.reset_weights", text="", icon="LOOP_BACK", emboss=False)
@@ -184,10 +190,7 @@ class VIEW3D_PT_contact_edit_rig(SubPanel, bpy.types.Panel):
         report = posing.rig_report(context.scene)
         if report is None:
             return
-        box = layout.box().column(align=True)
-        lines = [line for text in report.lines for line in wrapped(context, text)]
-        for i, line in enumerate(lines):
-            box.label(text=line, icon=("CHECKMARK" if report.ok else "ERROR") if i == 0 else "BLANK1")
+        draw_message(context, layout, report.lines, "CHECKMARK" if report.ok else "ERROR")
 
 
 class VIEW3D_PT_contact_edit_library(SubPanel, bpy.types.Panel):

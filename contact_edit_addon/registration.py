@@ -15,6 +15,8 @@ from . import (
 )
 from .preferences import CONTACT_EDIT_AP_preferences
 
+#: Each class after those it refers to: property groups before the groups and operators that hold them,
+#: a sub-panel after its parent.
 classes = (
     CONTACT_EDIT_AP_preferences,
     *properties.classes,
@@ -24,25 +26,20 @@ classes = (
     *panels.classes,
     *device_panel.classes,
 )
+#: What else the add-on adds to Blender (pointer properties on its types, handlers, menus, draw callbacks,
+#: hotkeys), once the classes are registered; taken away in the reverse order, before them.
+modules = (properties, device_properties, device_session, assets, overlays, keymaps)
+
+register_classes, unregister_classes = bpy.utils.register_classes_factory(classes)
 
 
 def register() -> None:
-    for cls in classes:
-        bpy.utils.register_class(cls)
-    properties.register()
-    device_properties.register()
-    device_session.register()
-    assets.register()
-    overlays.register()
-    keymaps.register()
+    register_classes()
+    for module in modules:
+        module.register()
 
 
 def unregister() -> None:
-    keymaps.unregister()
-    overlays.unregister()
-    assets.unregister()
-    device_session.unregister()
-    device_properties.unregister()
-    properties.unregister()
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+    for module in reversed(modules):
+        module.unregister()
+    unregister_classes()

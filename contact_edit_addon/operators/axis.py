@@ -34,6 +34,7 @@ class CONTACT_EDIT_OT_axis(HotkeyTool, bpy.types.Operator):
 
     why_not = staticmethod(need_patch)
 
+    @guarded
     def invoke(self, context, event):
         if self.method != "POINTS" or context.area is None or context.area.type != "VIEW_3D":
             return self.execute(context)
@@ -60,10 +61,8 @@ class CONTACT_EDIT_OT_axis(HotkeyTool, bpy.types.Operator):
                 return self.execute(context)
         return {"RUNNING_MODAL"}
 
+    @guarded
     def execute(self, context):
-        return guarded(self, lambda: self._set_axis(context))
-
-    def _set_axis(self, context):
         obj = mesh_object(context, self.object_name or None)
         contacts = store.load(obj)
         name = self.patch or store.active_patch_name(obj)

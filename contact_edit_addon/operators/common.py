@@ -1,9 +1,9 @@
-"""What the operators share: reporting library errors, picking points with the mouse, directions."""
+"""What the operators share: polls that say why not, reporting library errors, picking points with the
+mouse, directions."""
 
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
 
 import bpy
 import numpy as np
@@ -11,6 +11,7 @@ from bpy_extras import view3d_utils
 
 from geodesics import ContactError, GeodesicError, MeshError, SurfacePoints, tangent_from_3d
 from solver import SolverError
+from tangible import TangibleError
 
 from .. import bridge
 
@@ -20,25 +21,36 @@ NAVIGATION = {
     "NDOF_MOTION", "NUMPAD_1", "NUMPAD_2", "NUMPAD_3", "NUMPAD_4", "NUMPAD_5", "NUMPAD_6", "NUMPAD_7",
     "NUMPAD_8", "NUMPAD_9", "NUMPAD_PERIOD",
 }  # fmt: skip
-#: Errors the libraries raise for bad input; the operators report them instead of failing.
-USER_ERRORS = (ContactError, GeodesicError, MeshError, SolverError, bridge.BridgeError)
+#: Errors the libraries raise for bad input (and the device for a bad port or a broken link); the operators
+#: report them instead of failing.
+USER_ERRORS = (ContactError, GeodesicError, MeshError, SolverError, TangibleError, bridge.BridgeError)
 
 
-def guarded(operator: bpy.types.Operator, action: Callable[[], set]) -> set:
-    """Run ``action``; report a library error as an operator error and cancel. Nothing else changes,
-    except that a mesh's offending polygons and vertices are selected, to show where it is broken."""
-    try:
-        return action()
-    except USER_ERRORS as err:
-        obj = bpy.data.objects.get(getattr(err, "object_name", ""))
-        if obj is not None and obj.type == "MESH" and (err.polygons.size or err.vertices.size):
-            if obj.mode == "EDIT":
-                bpy.ops.object.mode_set(mode="OBJECT")
-            bridge.select_elements(obj, err.polygons, err.vertices)
-            operator.report({"ERROR"}, f"{err} — the offending elements are selected")
-        else:
-            operator.report({"ERROR"}, str(err))
-        return {"CANCELLED"}
+def guarded(method=None, *, capitalised: bool = False):
+    """``method`` (an operator's ``execute`` or ``invoke``) reporting a library or device error as an
+    operator error (its first letter capitalised, with ``@guarded(capitalised=True)``) and cancelling.
+    Nothing else changes, except that a mesh's offending polygons and vertices are selected, to show
+    where it is broken."""
+    if method is None:
+        return functools.partial(guarded, capitalised=capitalised)
+
+    def run(self, context, *event) -> set:
+        try:
+            return method(self, context, *event)
+        except USER_ERRORS as err:
+            message = str(err)
+            if capitalised:
+                message = message[:1].upper() + message[1:]
+            obj = bpy.data.objects.get(getattr(err, "object_name", ""))
+            if obj is not None and obj.type == "MESH" and (err.polygons.size or err.vertices.size):
+                if obj.mode == "EDIT":
+                    bpy.ops.object.mode_set(mode="OBJECT")
+                bridge.select_elements(obj, err.polygons, err.vertices)
+                message += " — the offending elements are selected"
+            self.report({"ERROR"}, message)
+            return {"CANCELLED"}
+
+    return _as_method(method, run)
 
 
 def unique_name(existing, base: str) -> str:
@@ -112,23 +124,25 @@ def need_patch(context) -> str | None:
     return reason
 
 
-def poll_with(cls, reason: str | None) -> bool:
-    """A poll for buttons and menus: False, with the reason as the disabled button's tooltip."""
-    if reason is not None:
-        cls.poll_message_set(reason)
-        return False
-    return True
+class ExplainedPoll:
+    """For operators that cannot always run: ``why_not(context)`` says why not (None: they can). Their
+    poll fails then, and Blender shows the reason as the disabled button's tooltip (and raises it, to a
+    script that calls them)."""
+
+    @staticmethod
+    def why_not(context) -> str | None:
+        return None
+
+    @classmethod
+    def poll(cls, context):
+        reason = cls.why_not(context)
+        if reason is not None:
+            cls.poll_message_set(reason)
+            return False
+        return True
 
 
-def poll_mesh(cls, context) -> bool:
-    return poll_with(cls, need_mesh(context))
-
-
-def poll_patch(cls, context) -> bool:
-    return poll_with(cls, need_patch(context))
-
-
-class HotkeyTool:
+class HotkeyTool(ExplainedPoll):
     """For operators that a hotkey starts. When a hotkey's operator cannot run (its poll fails) Blender
     does nothing at all, silently; these leave poll open instead, and their ``invoke`` and ``execute``
     (wrapped here, in every subclass that defines them) report ``why_not(context)`` as an error and
@@ -138,10 +152,6 @@ class HotkeyTool:
     def poll(cls, context):
         return context.scene is not None
 
-    @staticmethod
-    def why_not(context) -> str | None:
-        return None
-
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
         for name in ("invoke", "execute"):
@@ -150,26 +160,31 @@ class HotkeyTool:
 
 
 def _checked(method):
-    """``method`` (``execute(self, context)`` or ``invoke(self, context, event)``: Blender checks the
-    argument count) preceded by the ``why_not`` check."""
+    """``method`` preceded by the ``why_not`` check."""
 
-    def refused(self, context) -> set | None:
+    def run(self, context, *event) -> set:
         reason = self.why_not(context)
-        if reason is None:
-            return None
-        self.report({"ERROR"}, reason)
-        return {"CANCELLED"}
+        if reason is not None:
+            self.report({"ERROR"}, reason)
+            return {"CANCELLED"}
+        return method(self, context, *event)
 
+    return _as_method(method, run)
+
+
+def _as_method(method, run):
+    """``run(self, context, *event)`` as an operator method in place of ``method``: ``execute(self,
+    context)`` or ``invoke(self, context, event)``, as ``method`` is (Blender checks the argument count)."""
     if method.__code__.co_argcount == 3:
 
         @functools.wraps(method)
         def invoke(self, context, event):
-            return refused(self, context) or method(self, context, event)
+            return run(self, context, event)
 
         return invoke
 
     @functools.wraps(method)
     def execute(self, context):
-        return refused(self, context) or method(self, context)
+        return run(self, context)
 
     return execute

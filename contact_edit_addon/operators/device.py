@@ -1,19 +1,14 @@
-"""Drive an armature live from the modular puppet device (Glauser et al. 2016): connect to a port or the
-built-in simulator, bind joints to bones (as a proposed device says, or by hand) and to shape keys or any
-number property, calibrate, record, stop.
+"""The puppet device's operators (Glauser et al. 2016): connect to a port or the built-in simulator, bind
+joints to bones (as a proposed device says, or by hand) and to shape keys or any number property,
+calibrate, key, stop, and propose a device for a kit.
 
-A live connection is a :class:`Session`, kept in this module per armature *name* (never a Blender
-reference, so undo cannot leave it dangling). It owns the :class:`tangible.SerialReader` (and the
-:class:`tangible.Simulator` behind it, if simulated) and a :class:`tangible.Puppet` built from the
-scene's bindings. :meth:`Session.tick` applies the device's latest state once, on the main thread: the
-bound bones take the joints' rotations, the other bones follow the sample poses by pose interpolation,
-shape keys and properties take their joints' angles, and in record mode the pose is keyed on every new
-frame. Interactively ``contact_edit.device_connect`` calls it from a modal timer; in background mode
-(no window, so no timers) scripts call ``contact_edit.device_update`` instead, e.g. once per frame.
-
-Joints that fall silent (unplugged, a subtree without power, the port gone) keep their bones and numbers
-where they were — the pose freezes — and the status line says which. ``contact_edit.device_stop`` closes
-the port and gives the bones and numbers the device touched back their values from before connecting.
+The live connection they start and stop is a :class:`~contact_edit_addon.device_session.Session`, in
+:mod:`contact_edit_addon.device_session` (which keeps one per driven armature and says what each tick
+applies); the bindings and settings they edit are the scene's, in
+:mod:`contact_edit_addon.device_properties`. Interactively ``contact_edit.device_connect`` ticks the
+session from a modal timer; in background mode (no window, so no timers) scripts call
+``contact_edit.device_update`` instead, e.g. once per frame. ``contact_edit.device_stop`` closes the port
+and gives the bones and numbers the device touched back their values from before connecting.
 """
 
 from __future__ import annotations
@@ -21,16 +16,13 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from tangible import (
-    Kit,
-    TangibleError,
-    reduce,
-)
+from tangible import Kit, reduce
 from tangible.assembly import instructions_text
 
 from .. import store
 from ..bridge import BridgeError
 from ..bridge.device import ArmatureRig, ScalarTarget, action_sample_poses, scalar_target
+from ..device_panel import draw_mapping
 from ..device_properties import CHANNEL_ITEMS, TARGETS
 from ..device_session import (
     Session,
@@ -43,60 +35,41 @@ from ..device_session import (
     sessions,
     wait_for_device,
 )
-from .common import USER_ERRORS, HotkeyTool
+from .common import ExplainedPoll, HotkeyTool, guarded
 
-#: Errors reported to the user instead of failing.
-DEVICE_ERRORS = (*USER_ERRORS, TangibleError)
 #: The text datablock that receives a proposed device's assembly instructions.
 INSTRUCTIONS_TEXT = "Device assembly"
 
 
-def poll_armature(cls, context) -> bool:
+def need_armature(context) -> str | None:
     if device_armature(context) is None:
-        cls.poll_message_set("Choose the armature to drive in the Device panel, or select one")
-        return False
-    return True
+        return "Choose the armature to drive in the Device panel, or select one"
+    return None
 
 
-def poll_live(cls, context) -> bool:
-    if not poll_armature(cls, context):
-        return False
-    if live_session(context) is None:
-        cls.poll_message_set(f"No device is driving '{device_armature(context).name}': connect one first")
-        return False
-    return True
+def need_live(context) -> str | None:
+    reason = need_armature(context)
+    if reason is None and live_session(context) is None:
+        reason = f"No device is driving '{device_armature(context).name}': connect one first"
+    return reason
 
 
-def report_errors(operator: bpy.types.Operator, action) -> set:
-    """Run ``action``; report a device or Blender-data error and cancel instead of failing."""
-    try:
-        return action()
-    except DEVICE_ERRORS as err:
-        message = str(err)
-        operator.report({"ERROR"}, message[:1].upper() + message[1:])
-        return {"CANCELLED"}
-
-
-class CONTACT_EDIT_OT_device_connect(bpy.types.Operator):
+class CONTACT_EDIT_OT_device_connect(ExplainedPoll, bpy.types.Operator):
     """Connect the puppet device (or the simulator) and drive the armature live from it"""
 
     bl_idname = "contact_edit.device_connect"
     bl_label = "Connect Device"
     bl_options = {"REGISTER", "UNDO"}
 
-    @classmethod
-    def poll(cls, context):
-        if not poll_armature(cls, context):
-            return False
-        if live_session(context) is not None:
-            cls.poll_message_set(f"'{device_armature(context).name}' is already driven by the device")
-            return False
-        return True
+    @staticmethod
+    def why_not(context) -> str | None:
+        reason = need_armature(context)
+        if reason is None and live_session(context) is not None:
+            reason = f"'{device_armature(context).name}' is already driven by the device"
+        return reason
 
+    @guarded(capitalised=True)
     def execute(self, context):
-        return report_errors(self, lambda: self._connect(context))
-
-    def _connect(self, context):
         settings = context.scene.contact_edit_device
         armature = device_armature(context)
         rig = ArmatureRig.capture(armature)
@@ -157,21 +130,17 @@ class CONTACT_EDIT_OT_device_connect(bpy.types.Operator):
         return {"CANCELLED"}
 
 
-class CONTACT_EDIT_OT_device_update(bpy.types.Operator):
+class CONTACT_EDIT_OT_device_update(ExplainedPoll, bpy.types.Operator):
     """Apply the device's latest state to the armature once (what the live timer does; for scripts)"""
 
     bl_idname = "contact_edit.device_update"
     bl_label = "Update from Device"
     bl_options = {"REGISTER", "UNDO"}
 
-    @classmethod
-    def poll(cls, context):
-        return poll_live(cls, context)
+    why_not = staticmethod(need_live)
 
+    @guarded(capitalised=True)
     def execute(self, context):
-        return report_errors(self, lambda: self._update(context))
-
-    def _update(self, context):
         session = live_session(context)
         try:
             level, message = session.tick(context.scene)
@@ -183,7 +152,7 @@ class CONTACT_EDIT_OT_device_update(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class CONTACT_EDIT_OT_device_stop(bpy.types.Operator):
+class CONTACT_EDIT_OT_device_stop(ExplainedPoll, bpy.types.Operator):
     """Disconnect the device and give the armature back its pose from before connecting"""
 
     bl_idname = "contact_edit.device_stop"
@@ -194,9 +163,7 @@ class CONTACT_EDIT_OT_device_stop(bpy.types.Operator):
         name="Keep pose", description="Keep the device's last pose instead of the pose from before connecting"
     )
 
-    @classmethod
-    def poll(cls, context):
-        return poll_live(cls, context)
+    why_not = staticmethod(need_live)
 
     def execute(self, context):
         session = sessions.pop(device_armature(context).name)
@@ -208,7 +175,7 @@ class CONTACT_EDIT_OT_device_stop(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class CONTACT_EDIT_OT_device_calibrate(bpy.types.Operator):
+class CONTACT_EDIT_OT_device_calibrate(ExplainedPoll, bpy.types.Operator):
     """Hold the device like the character and take its shape as the bound bones' rest pose"""
 
     bl_idname = "contact_edit.device_calibrate"
@@ -230,14 +197,10 @@ class CONTACT_EDIT_OT_device_calibrate(bpy.types.Operator):
         default=False,
     )
 
-    @classmethod
-    def poll(cls, context):
-        return poll_live(cls, context)
+    why_not = staticmethod(need_live)
 
+    @guarded(capitalised=True)
     def execute(self, context):
-        return report_errors(self, lambda: self._calibrate(context))
-
-    def _calibrate(self, context):
         session = live_session(context)
         count = session.calibrate(context.scene.contact_edit_device, self.pose == "START", self.zero_device)
         session.tick(context.scene)
@@ -250,7 +213,7 @@ class CONTACT_EDIT_OT_device_calibrate(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class CONTACT_EDIT_OT_device_identify(bpy.types.Operator):
+class CONTACT_EDIT_OT_device_identify(ExplainedPoll, bpy.types.Operator):
     """Blink the joint's green LED on the device, to find it"""
 
     bl_idname = "contact_edit.device_identify"
@@ -258,14 +221,10 @@ class CONTACT_EDIT_OT_device_identify(bpy.types.Operator):
 
     joint: bpy.props.IntProperty(name="Joint", description="The joint's id", min=0)
 
-    @classmethod
-    def poll(cls, context):
-        return poll_live(cls, context)
+    why_not = staticmethod(need_live)
 
+    @guarded(capitalised=True)
     def execute(self, context):
-        return report_errors(self, lambda: self._identify(context))
-
-    def _identify(self, context):
         live_session(context).identify(self.joint)
         self.report({"INFO"}, f"Joint {self.joint} blinks its green LED")
         return {"FINISHED"}
@@ -287,10 +246,8 @@ class CONTACT_EDIT_OT_device_key(HotkeyTool, bpy.types.Operator):
             return f"No device is driving '{armature.name}': connect one in the Puppet Device panel first"
         return None
 
+    @guarded(capitalised=True)
     def execute(self, context):
-        return report_errors(self, lambda: self._key(context))
-
-    def _key(self, context):
         count = live_session(context).key(context.scene)
         self.report(
             {"INFO"}, f"Keyed {count} channel{'s' * (count != 1)} at frame {context.scene.frame_current}"
@@ -298,7 +255,7 @@ class CONTACT_EDIT_OT_device_key(HotkeyTool, bpy.types.Operator):
         return {"FINISHED"}
 
 
-class CONTACT_EDIT_OT_device_bind(bpy.types.Operator):
+class CONTACT_EDIT_OT_device_bind(ExplainedPoll, bpy.types.Operator):
     """Bind a device joint to a bone (by default the active bone), a shape key or a property"""
 
     bl_idname = "contact_edit.device_bind"
@@ -317,9 +274,7 @@ class CONTACT_EDIT_OT_device_bind(bpy.types.Operator):
     target_min: bpy.props.FloatProperty(name="From value", default=0.0)
     target_max: bpy.props.FloatProperty(name="To value", default=1.0)
 
-    @classmethod
-    def poll(cls, context):
-        return poll_armature(cls, context)
+    why_not = staticmethod(need_armature)
 
     def invoke(self, context, event):
         self.bone = self.bone or active_bone(context)
@@ -343,18 +298,10 @@ class CONTACT_EDIT_OT_device_bind(bpy.types.Operator):
             layout.prop(self, "shape_key")
         else:
             layout.prop(self, "data_path")
-        layout.prop(self, "channel")
-        row = layout.row(align=True)
-        row.prop(self, "source_min")
-        row.prop(self, "source_max")
-        row = layout.row(align=True)
-        row.prop(self, "target_min")
-        row.prop(self, "target_max")
+        draw_mapping(layout, self)
 
+    @guarded(capitalised=True)
     def execute(self, context):
-        return report_errors(self, lambda: self._bind(context))
-
-    def _bind(self, context):
         settings = context.scene.contact_edit_device
         bindings = settings.bindings
         if self.target == "BONE":
@@ -409,7 +356,7 @@ def active_bone(context) -> str:
     return active.name if active is not None else ""
 
 
-class CONTACT_EDIT_OT_device_unbind(bpy.types.Operator):
+class CONTACT_EDIT_OT_device_unbind(ExplainedPoll, bpy.types.Operator):
     """Remove a binding (by default the active one)"""
 
     bl_idname = "contact_edit.device_unbind"
@@ -420,12 +367,9 @@ class CONTACT_EDIT_OT_device_unbind(bpy.types.Operator):
         name="Binding", default=-1, min=-1, description="Which binding (-1: the active one)"
     )
 
-    @classmethod
-    def poll(cls, context):
-        if not context.scene.contact_edit_device.bindings:
-            cls.poll_message_set("There are no bindings")
-            return False
-        return True
+    @staticmethod
+    def why_not(context) -> str | None:
+        return None if context.scene.contact_edit_device.bindings else "There are no bindings"
 
     def execute(self, context):
         settings = context.scene.contact_edit_device
@@ -438,7 +382,7 @@ class CONTACT_EDIT_OT_device_unbind(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class CONTACT_EDIT_OT_device_propose(bpy.types.Operator):
+class CONTACT_EDIT_OT_device_propose(ExplainedPoll, bpy.types.Operator):
     """Fit the kit to the armature's sample poses: which bones get joints, where splitters go, and the
     assembly instructions; binds the planned joints to their bones"""
 
@@ -446,22 +390,17 @@ class CONTACT_EDIT_OT_device_propose(bpy.types.Operator):
     bl_label = "Propose Device"
     bl_options = {"REGISTER", "UNDO"}
 
-    @classmethod
-    def poll(cls, context):
-        if not poll_armature(cls, context):
-            return False
-        if live_session(context) is not None:
-            cls.poll_message_set("Stop the device before proposing a new one")
-            return False
-        if context.scene.contact_edit_device.sample_action is None:
-            cls.poll_message_set("Choose the sample poses (an action with a few keyed poses) first")
-            return False
-        return True
+    @staticmethod
+    def why_not(context) -> str | None:
+        reason = need_armature(context)
+        if reason is None and live_session(context) is not None:
+            reason = "Stop the device before proposing a new one"
+        if reason is None and context.scene.contact_edit_device.sample_action is None:
+            reason = "Choose the sample poses (an action with a few keyed poses) first"
+        return reason
 
+    @guarded(capitalised=True)
     def execute(self, context):
-        return report_errors(self, lambda: self._propose(context))
-
-    def _propose(self, context):
         settings = context.scene.contact_edit_device
         armature = device_armature(context)
         rig = ArmatureRig.capture(armature, weights=True)

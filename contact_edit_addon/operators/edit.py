@@ -43,22 +43,17 @@ class _PatchEdit(HotkeyTool):
         contacts[name]  # raises a clear error for an unknown name
         return obj, contacts, name
 
+    @guarded
     def execute(self, context):
-        def run():
-            obj, contacts, name = self._target(context)
-            store.save(obj, self.edited(contacts, name))
-            return {"FINISHED"}
+        obj, contacts, name = self._target(context)
+        store.save(obj, self.edited(contacts, name))
+        return {"FINISHED"}
 
-        return guarded(self, run)
-
+    @guarded
     def invoke(self, context, event):
         if context.area is None or context.area.type != "VIEW_3D":
             return self.execute(context)
-        try:
-            self._obj, self._start, self._name = self._target(context)
-        except USER_ERRORS as err:
-            self.report({"ERROR"}, str(err))
-            return {"CANCELLED"}
+        self._obj, self._start, self._name = self._target(context)
         self._result = None
         self._mouse = (event.mouse_region_x, event.mouse_region_y)
         context.window_manager.modal_handler_add(self)
@@ -149,15 +144,12 @@ class CONTACT_EDIT_OT_bend(_PatchEdit, bpy.types.Operator):
     index: bpy.props.IntProperty(name="Axis point", min=1, default=1, description="Where the axis bends")
     angle: bpy.props.FloatProperty(name="Angle", subtype="ANGLE")
 
+    @guarded
     def invoke(self, context, event):
         obj = mesh_object(context, self.object_name or None)
-        try:
-            contacts = store.load(obj)
-            name = self.patch or store.active_patch_name(obj)
-            self.index = max(1, len(contacts[name].axis) // 2)  # the middle, unless a script chose
-        except USER_ERRORS as err:
-            self.report({"ERROR"}, str(err))
-            return {"CANCELLED"}
+        contacts = store.load(obj)
+        name = self.patch or store.active_patch_name(obj)
+        self.index = max(1, len(contacts[name].axis) // 2)  # the middle, unless a script chose
         return super().invoke(context, event)
 
     def edited(self, contacts, name):

@@ -9,10 +9,18 @@ from bpy_extras.io_utils import ExportHelper, ImportHelper
 from geodesics import ContactSet
 
 from .. import store
-from .common import guarded, mesh_object, poll_mesh, poll_patch
+from .common import ExplainedPoll, guarded, mesh_object, need_mesh, need_patch
 
 
-class CONTACT_EDIT_OT_parent(bpy.types.Operator):
+def change_patch(operator, context, name: str, change) -> set:
+    """Store ``change(contacts, name)``, the contact set of the operator's object changed at the patch
+    ``name`` (default: the active patch)."""
+    obj = mesh_object(context, operator.object_name or None)
+    store.save(obj, change(store.load(obj), name or store.active_patch_name(obj)))
+    return {"FINISHED"}
+
+
+class CONTACT_EDIT_OT_parent(ExplainedPoll, bpy.types.Operator):
     """Parent a contact patch to another, so editing the parent carries it along"""
 
     bl_idname = "contact_edit.parent"
@@ -23,21 +31,16 @@ class CONTACT_EDIT_OT_parent(bpy.types.Operator):
     parent: bpy.props.StringProperty(name="Parent")
     object_name: bpy.props.StringProperty(name="Object", description="Default: the active object")
 
-    @classmethod
-    def poll(cls, context):
-        return poll_patch(cls, context)
+    why_not = staticmethod(need_patch)
 
+    @guarded
     def execute(self, context):
-        def run():
-            obj = mesh_object(context, self.object_name or None)
-            child = self.child or store.active_patch_name(obj)
-            store.save(obj, store.load(obj).parent(child, self.parent))
-            return {"FINISHED"}
-
-        return guarded(self, run)
+        return change_patch(
+            self, context, self.child, lambda contacts, child: contacts.parent(child, self.parent)
+        )
 
 
-class CONTACT_EDIT_OT_unparent(bpy.types.Operator):
+class CONTACT_EDIT_OT_unparent(ExplainedPoll, bpy.types.Operator):
     """Detach a contact patch from its parent (it stays where it is)"""
 
     bl_idname = "contact_edit.unparent"
@@ -47,21 +50,14 @@ class CONTACT_EDIT_OT_unparent(bpy.types.Operator):
     child: bpy.props.StringProperty(name="Child", description="Default: the active patch")
     object_name: bpy.props.StringProperty(name="Object", description="Default: the active object")
 
-    @classmethod
-    def poll(cls, context):
-        return poll_patch(cls, context)
+    why_not = staticmethod(need_patch)
 
+    @guarded
     def execute(self, context):
-        def run():
-            obj = mesh_object(context, self.object_name or None)
-            child = self.child or store.active_patch_name(obj)
-            store.save(obj, store.load(obj).unparent(child))
-            return {"FINISHED"}
-
-        return guarded(self, run)
+        return change_patch(self, context, self.child, lambda contacts, child: contacts.unparent(child))
 
 
-class CONTACT_EDIT_OT_clear(bpy.types.Operator):
+class CONTACT_EDIT_OT_clear(ExplainedPoll, bpy.types.Operator):
     """Remove a contact patch, or all of an object's patches"""
 
     bl_idname = "contact_edit.clear"
@@ -72,25 +68,17 @@ class CONTACT_EDIT_OT_clear(bpy.types.Operator):
     all: bpy.props.BoolProperty(name="All patches", default=False)
     object_name: bpy.props.StringProperty(name="Object", description="Default: the active object")
 
-    @classmethod
-    def poll(cls, context):
-        return poll_patch(cls, context)
+    why_not = staticmethod(need_patch)
 
+    @guarded
     def execute(self, context):
-        def run():
-            obj = mesh_object(context, self.object_name or None)
-            contacts = store.load(obj)
-            if self.all:
-                contacts = ContactSet(contacts.mesh)
-            else:
-                contacts = contacts.remove(self.patch or store.active_patch_name(obj))
-            store.save(obj, contacts)
-            return {"FINISHED"}
+        def cleared(contacts, name):
+            return ContactSet(contacts.mesh) if self.all else contacts.remove(name)
 
-        return guarded(self, run)
+        return change_patch(self, context, self.patch, cleared)
 
 
-class CONTACT_EDIT_OT_library_save(bpy.types.Operator, ExportHelper):
+class CONTACT_EDIT_OT_library_save(ExplainedPoll, bpy.types.Operator, ExportHelper):
     """Save the object's contact patches as a reusable contact library (JSON)"""
 
     bl_idname = "contact_edit.library_save"
@@ -99,21 +87,17 @@ class CONTACT_EDIT_OT_library_save(bpy.types.Operator, ExportHelper):
     filter_glob: bpy.props.StringProperty(default="*.json", options={"HIDDEN"})
     object_name: bpy.props.StringProperty(name="Object", description="Default: the active object")
 
-    @classmethod
-    def poll(cls, context):
-        return poll_patch(cls, context)
+    why_not = staticmethod(need_patch)
 
+    @guarded
     def execute(self, context):
-        def run():
-            obj = mesh_object(context, self.object_name or None)
-            store.load(obj).save(self.filepath)  # written atomically: never half a file
-            self.report({"INFO"}, f"Saved {len(obj.contact_edit.patches)} patches to {self.filepath}")
-            return {"FINISHED"}
-
-        return guarded(self, run)
+        obj = mesh_object(context, self.object_name or None)
+        store.load(obj).save(self.filepath)  # written atomically: never half a file
+        self.report({"INFO"}, f"Saved {len(obj.contact_edit.patches)} patches to {self.filepath}")
+        return {"FINISHED"}
 
 
-class CONTACT_EDIT_OT_library_load(bpy.types.Operator, ImportHelper):
+class CONTACT_EDIT_OT_library_load(ExplainedPoll, bpy.types.Operator, ImportHelper):
     """Load a contact library onto the object (projected onto it if it was made for another mesh)"""
 
     bl_idname = "contact_edit.library_load"
@@ -126,33 +110,27 @@ class CONTACT_EDIT_OT_library_load(bpy.types.Operator, ImportHelper):
         name="Remap", default=False, description="Project a library made for another mesh onto this one"
     )
 
-    @classmethod
-    def poll(cls, context):
-        return poll_mesh(cls, context)
+    why_not = staticmethod(need_mesh)
 
+    @guarded
     def execute(self, context):
-        def run():
-            obj = mesh_object(context, self.object_name or None)
-            mesh = store.load(obj).mesh
-            library = ContactSet.load(self.filepath, mesh, remap=self.remap)
-            merged = store.load(obj)
-            clash = [name for name in library if name in merged]
-            if clash:
-                self.report(
-                    {"ERROR"}, f"'{obj.name}' already has patches named {', '.join(clash)}; rename first"
-                )
-                return {"CANCELLED"}
-            merged = ContactSet(
-                mesh,
-                {**merged.patches, **library.patches},
-                {**merged.links, **library.links},
-                {**merged.pairs, **library.pairs},
-            )
-            store.save(obj, merged)
-            self.report({"INFO"}, f"Loaded {len(library)} patches onto '{obj.name}'")
-            return {"FINISHED"}
-
-        return guarded(self, run)
+        obj = mesh_object(context, self.object_name or None)
+        mesh = store.load(obj).mesh
+        library = ContactSet.load(self.filepath, mesh, remap=self.remap)
+        merged = store.load(obj)
+        clash = [name for name in library if name in merged]
+        if clash:
+            self.report({"ERROR"}, f"'{obj.name}' already has patches named {', '.join(clash)}; rename first")
+            return {"CANCELLED"}
+        merged = ContactSet(
+            mesh,
+            {**merged.patches, **library.patches},
+            {**merged.links, **library.links},
+            {**merged.pairs, **library.pairs},
+        )
+        store.save(obj, merged)
+        self.report({"INFO"}, f"Loaded {len(library)} patches onto '{obj.name}'")
+        return {"FINISHED"}
 
 
 classes = (

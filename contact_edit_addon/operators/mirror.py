@@ -12,7 +12,7 @@ from geodesics.mirror import MirrorMap, flip_name, mirror_contacts
 from solver.mirror import PoseChannel, mirror_pose
 
 from .. import bridge, store
-from .common import guarded, mesh_object, poll_patch, poll_with
+from .common import ExplainedPoll, guarded, mesh_object, need_patch
 
 
 def mirror_space(obj: bpy.types.Object) -> np.ndarray:
@@ -56,7 +56,7 @@ def mirror_patches(source: bpy.types.Object, target: bpy.types.Object, names, ov
     return [flip_name(n) for n in names]
 
 
-class CONTACT_EDIT_OT_mirror_contacts(bpy.types.Operator):
+class CONTACT_EDIT_OT_mirror_contacts(ExplainedPoll, bpy.types.Operator):
     """Copy contact patches to the other side: onto the object named for it (Hand.L → Hand.R), or onto the
     other half of the same mesh"""
 
@@ -75,24 +75,20 @@ class CONTACT_EDIT_OT_mirror_contacts(bpy.types.Operator):
     )
     overwrite: bpy.props.BoolProperty(name="Replace", description="Replace patches that have the new names")
 
-    @classmethod
-    def poll(cls, context):
-        return poll_patch(cls, context)
+    why_not = staticmethod(need_patch)
 
+    @guarded
     def execute(self, context):
-        def run():
-            source = mesh_object(context, self.object_name or None)
-            target = mesh_object(context, self.target_name) if self.target_name else counterpart(source)
-            names = list(store.load(source)) if self.scope == "ALL" else [store.active_patch_name(source)]
-            made = mirror_patches(source, target, names, self.overwrite)
-            self.report({"INFO"}, f"Mirrored {', '.join(made)} onto '{target.name}'")
-            store.redraw()
-            return {"FINISHED"}
-
-        return guarded(self, run)
+        source = mesh_object(context, self.object_name or None)
+        target = mesh_object(context, self.target_name) if self.target_name else counterpart(source)
+        names = list(store.load(source)) if self.scope == "ALL" else [store.active_patch_name(source)]
+        made = mirror_patches(source, target, names, self.overwrite)
+        self.report({"INFO"}, f"Mirrored {', '.join(made)} onto '{target.name}'")
+        store.redraw()
+        return {"FINISHED"}
 
 
-class CONTACT_EDIT_OT_mirror_pose(bpy.types.Operator):
+class CONTACT_EDIT_OT_mirror_pose(ExplainedPoll, bpy.types.Operator):
     """Give the other side the mirror image of this side's pose, as Paste Pose Flipped does: the hand's
     solved controls, or the selected bones"""
 
@@ -112,42 +108,41 @@ class CONTACT_EDIT_OT_mirror_pose(bpy.types.Operator):
         name="Keyframe", description="Key the mirrored bones on the current frame"
     )
 
-    @classmethod
-    def poll(cls, context):
-        hand = context.scene.contact_edit.hand
-        return poll_with(cls, None if hand is not None else "Choose the hand in the Contact tab first")
+    @staticmethod
+    def why_not(context) -> str | None:
+        if context.scene.contact_edit.hand is None:
+            return "Choose the hand in the Contact tab first"
+        return None
 
+    @guarded
     def execute(self, context):
-        def run():
-            hand = context.scene.contact_edit.hand
-            armature = bridge.armature_modifier(hand).object
-            if self.bones == "HAND":
-                rig = bridge.hand_rig(hand)
-                plan = bridge.hand_plan(
-                    rig, bridge.trimesh(hand).faces, hand_root=context.scene.contact_edit.hand_root
-                )
-                chosen = [n for n in (plan.root, *plan.controls) if n]
-            else:
-                chosen = sorted(bridge.selected_bones(armature))
-            if not chosen:
-                raise bridge.BridgeError(f"no bone of '{armature.name}' to mirror: select some in Pose Mode")
-            pose = {b.name: PoseChannel.from_object(b) for b in armature.pose.bones}
-            after = mirror_pose(pose, selected=chosen)
-            changed = [n for n in dict.fromkeys(flip_name(c) for c in chosen) if n in after]
-            for name in changed:
-                pose_bone = armature.pose.bones[name]
-                after[name].apply_to(pose_bone)
-                if self.keyframe:
-                    for path in ("location", bridge.rotation_path(pose_bone.rotation_mode), "scale"):
-                        pose_bone.keyframe_insert(path, frame=context.scene.frame_current, group=name)
-            self.report(
-                {"INFO"},
-                f"Mirrored {len(chosen)} bones onto {len(changed)}: {', '.join(changed[:4])}"
-                + (", …" if len(changed) > 4 else ""),
+        hand = context.scene.contact_edit.hand
+        armature = bridge.armature_modifier(hand).object
+        if self.bones == "HAND":
+            rig = bridge.hand_rig(hand)
+            plan = bridge.hand_plan(
+                rig, bridge.trimesh(hand).faces, hand_root=context.scene.contact_edit.hand_root
             )
-            return {"FINISHED"}
-
-        return guarded(self, run)
+            chosen = [n for n in (plan.root, *plan.controls) if n]
+        else:
+            chosen = sorted(bridge.selected_bones(armature))
+        if not chosen:
+            raise bridge.BridgeError(f"no bone of '{armature.name}' to mirror: select some in Pose Mode")
+        pose = {b.name: PoseChannel.from_object(b) for b in armature.pose.bones}
+        after = mirror_pose(pose, selected=chosen)
+        changed = [n for n in dict.fromkeys(flip_name(c) for c in chosen) if n in after]
+        for name in changed:
+            pose_bone = armature.pose.bones[name]
+            after[name].apply_to(pose_bone)
+            if self.keyframe:
+                for path in ("location", bridge.rotation_path(pose_bone.rotation_mode), "scale"):
+                    pose_bone.keyframe_insert(path, frame=context.scene.frame_current, group=name)
+        self.report(
+            {"INFO"},
+            f"Mirrored {len(chosen)} bones onto {len(changed)}: {', '.join(changed[:4])}"
+            + (", …" if len(changed) > 4 else ""),
+        )
+        return {"FINISHED"}
 
 
 classes = (CONTACT_EDIT_OT_mirror_contacts, CONTACT_EDIT_OT_mirror_pose)

@@ -102,6 +102,7 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
 
     # ------------------------------------------------------------------ the brush, interactively
 
+    @guarded
     def invoke(self, context, event):
         if self.source == "SELECTION" or context.area is None or context.area.type != "VIEW_3D":
             return self.execute(context)
@@ -231,9 +232,6 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
 
     # ------------------------------------------------------------------ making the patch
 
-    def execute(self, context):
-        return guarded(self, lambda: self._paint(context))
-
     def _dabs(self, obj, mesh, items) -> tuple[list[Dab], SurfacePoints]:
         """The stroke as brush dabs on ``mesh`` (the shown shape, in object space), and the points of
         its zero-radius items."""
@@ -254,7 +252,8 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
         points = at[np.flatnonzero([i.radius <= 0 for i in items])]
         return dabs, points
 
-    def _paint(self, context):
+    @guarded
+    def execute(self, context):
         obj = mesh_object(context, self.object_name or None)
         if obj.mode == "EDIT":
             obj.update_from_editmode()

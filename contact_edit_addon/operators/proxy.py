@@ -8,13 +8,13 @@ import bpy
 import numpy as np
 
 from .. import bridge
-from .common import guarded, mesh_object, poll_mesh
+from .common import ExplainedPoll, guarded, mesh_object, need_mesh
 
 #: Default voxel size, as a fraction of the object's bounding-box diagonal.
 VOXEL_FRACTION = 1 / 150
 
 
-class CONTACT_EDIT_OT_make_proxy(bpy.types.Operator):
+class CONTACT_EDIT_OT_make_proxy(ExplainedPoll, bpy.types.Operator):
     """Make a manifold proxy of the mesh (remeshed and shrink-wrapped onto it) to carry its contacts"""
 
     bl_idname = "contact_edit.make_proxy"
@@ -27,14 +27,10 @@ class CONTACT_EDIT_OT_make_proxy(bpy.types.Operator):
         description="Detail of the proxy (0: 1/150 of the object's size)",
     )  # fmt: skip
 
-    @classmethod
-    def poll(cls, context):
-        return poll_mesh(cls, context)
+    why_not = staticmethod(need_mesh)
 
+    @guarded
     def execute(self, context):
-        return guarded(self, lambda: self._make(context))
-
-    def _make(self, context):
         obj = mesh_object(context, self.object_name or None)
         corners = (
             np.array([obj.matrix_world @ v.co for v in obj.data.vertices]) if obj.data.vertices else None

@@ -13,7 +13,7 @@ import threading
 import bpy
 
 from .. import bridge, posing, preferences, store
-from .common import USER_ERRORS, HotkeyTool, guarded, need_hand_and_object
+from .common import HotkeyTool, guarded, need_hand_and_object
 
 #: Viewport refreshes per second while solving.
 REDRAW_RATE = 30.0
@@ -41,10 +41,8 @@ class CONTACT_EDIT_OT_solve(HotkeyTool, bpy.types.Operator):
 
     why_not = staticmethod(need_pairs)
 
+    @guarded
     def execute(self, context):
-        return guarded(self, lambda: self._solve(context))
-
-    def _solve(self, context):
         problem = posing.problem(context.scene, self.stage)
         result = problem.ik.solve(problem.theta0, problem.free, max_evaluations=self.max_evaluations)
         self._finish(context, problem, result)
@@ -62,14 +60,11 @@ class CONTACT_EDIT_OT_solve(HotkeyTool, bpy.types.Operator):
 
     # ------------------------------------------------------------------ interactive
 
+    @guarded
     def invoke(self, context, event):
         if context.area is None or context.window is None:
             return self.execute(context)
-        try:
-            self._problem = posing.problem(context.scene, self.stage)
-        except USER_ERRORS as err:
-            self.report({"ERROR"}, str(err))
-            return {"CANCELLED"}
+        self._problem = posing.problem(context.scene, self.stage)
         self._latest = self._result = self._error = None
         self._shown = self._evaluations = 0
         self._stop = threading.Event()
@@ -170,10 +165,8 @@ class CONTACT_EDIT_OT_flex_to_contact(HotkeyTool, bpy.types.Operator):
 
     why_not = staticmethod(need_hand_and_object)
 
+    @guarded
     def execute(self, context):
-        return guarded(self, lambda: self._flex(context))
-
-    def _flex(self, context):
         sign = 1 if self.direction == "POSITIVE" else -1
         curl = "in turn" if self.joints == "IN_TURN" else "together"
         posed, result = posing.flex(context.scene, sign, curl)

@@ -64,14 +64,11 @@ class CONTACT_EDIT_OT_transfer(HotkeyTool, bpy.types.Operator):
 
     # ------------------------------------------------------------------ placing it with the mouse
 
+    @guarded
     def invoke(self, context, event):
         if context.area is None or context.area.type != "VIEW_3D":
             return self.execute(context)
-        try:
-            self._sets = self._load(context)
-        except USER_ERRORS as err:
-            self.report({"ERROR"}, str(err))
-            return {"CANCELLED"}
+        self._sets = self._load(context)
         self._pressed = False
         self._wanted = self._shown = None
         self._problem = ""
@@ -163,10 +160,8 @@ class CONTACT_EDIT_OT_transfer(HotkeyTool, bpy.types.Operator):
         colors = {f"{e.name}{self.suffix}": tuple(e.color) for e in settings.hand.contact_edit.patches}
         return hand_after, object_after, colors
 
+    @guarded
     def execute(self, context):
-        return guarded(self, lambda: self._transfer(context))
-
-    def _transfer(self, context):
         settings = context.scene.contact_edit
         hand_set, object_set = self._load(context)
         hand_after, object_after, colors = self._transferred(context, hand_set, object_set)
