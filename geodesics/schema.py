@@ -72,6 +72,8 @@ class Fields:
         return Fields(self.data, where, self.error, nested=True)
 
     def __contains__(self, key: str) -> bool:
+        """``key`` is present and not null (a null optional field counts as absent, as our writers
+        write absent links and pairs)."""
         return self.data.get(key) is not None
 
     def header(self, format: str, version: int, what: str) -> None:
