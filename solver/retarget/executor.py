@@ -17,7 +17,6 @@ import json
 import multiprocessing
 import os
 import signal
-import tempfile
 import zipfile
 from collections.abc import Callable, Mapping
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -27,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from geodesics.files import write_atomically
+from geodesics.files import atomic_file, write_atomically
 
 from ..errors import SolverError
 
@@ -71,14 +70,8 @@ class FrameStore:
 
     def save(self, frame: int, result: Result) -> None:
         arrays = {name: np.asarray(value) for name, value in result.items()}
-        handle, temp = tempfile.mkstemp(dir=self.folder, prefix=".", suffix=".npz")
-        try:
-            with os.fdopen(handle, "wb") as f:
-                np.savez(f, **arrays)
-            os.replace(temp, self.path(frame))
-        except BaseException:
-            Path(temp).unlink(missing_ok=True)
-            raise
+        with atomic_file(self.path(frame)) as f:
+            np.savez(f, **arrays)
 
     def load(self, frame: int) -> dict[str, np.ndarray]:
         try:

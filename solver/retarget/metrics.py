@@ -41,8 +41,6 @@ triangles sharing an edge never both or neither count a crossing through it wher
 
 from __future__ import annotations
 
-import os
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,6 +52,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from geodesics import TriMesh
 from geodesics.arrays import ranges
+from geodesics.files import atomic_file
 
 from ..errors import SolverError
 from ..sdf import Box, MeshSDF
@@ -545,13 +544,6 @@ def plot_metrics(
     fig.tight_layout()
 
     target = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".png", dir=target.parent or ".")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fig.savefig(fh, format="png", dpi=dpi)
-        os.replace(tmp, target)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_file(target) as fh:
+        fig.savefig(fh, format="png", dpi=dpi)
     return target
