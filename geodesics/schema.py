@@ -36,6 +36,7 @@ def is_number(value) -> bool:
 
 
 def _shown(value) -> str:
+    """A value as the file has it (its JSON text, cut at 40 characters): for a wrong scalar or list."""
     try:
         return json.dumps(value)[:40]
     except (TypeError, ValueError):
@@ -183,6 +184,7 @@ def _all_numbers(values) -> bool:
 
 
 def _json_type(value) -> str:
+    """The JSON type of a value: for an object that is something else (its text could be the whole file)."""
     return {dict: "an object", list: "a list", str: "a string", bool: "a boolean", type(None): "null"}.get(
         type(value), "a number"
     )
