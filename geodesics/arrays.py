@@ -12,12 +12,13 @@ def readonly(a) -> np.ndarray:
 
     Parameters
     ----------
-    a : array_like
+    a : (...) array_like
+        Any shape.
 
     Returns
     -------
-    ndarray
-        The same array object when ``a`` is an ndarray.
+    (...) ndarray
+        Of ``a``'s shape; the same array object when ``a`` is an ndarray.
     """
     a = np.asarray(a)
     a.setflags(write=False)

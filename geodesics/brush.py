@@ -91,7 +91,8 @@ class Dab:
 def paint(mesh: TriMesh, dabs, density: float, seed: int = 0) -> tuple[SurfacePoints, np.ndarray]:
     """The surface samples (``density`` per unit area) that a stroke of dabs covers, each once.
 
-    Returns the points, in sample order, and their sample ids (see :func:`surface_samples`).
+    Returns the points, SurfacePoints (k) in increasing sample-id order, and their (k,) int64 sample ids
+    (see :func:`surface_samples`).
     """
     found_points, found_ids = [], []
     for dab in dabs:

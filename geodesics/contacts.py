@@ -54,6 +54,7 @@ class Link:
     arrive: complex
 
     def mirrored(self) -> Link:
+        """The link of the mirror image: both directions conjugated."""
         return Link(self.parent, self.length, np.conj(self.leave), np.conj(self.arrive))
 
     def follow(self, parent_axis: Axis) -> tuple[SurfacePoints, complex]:

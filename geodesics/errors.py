@@ -16,7 +16,7 @@ def _ids(values) -> np.ndarray:
 
 
 def describe_ids(ids, limit: int = 10) -> str:
-    """``"3, 7, 12"`` or ``"3, 7, 12, … (40 in all)"`` for messages."""
+    """``"3, 7, 12"`` or ``"3, 7, 12, … (40 in all)"`` for messages: the distinct ``ids`` (any shape)."""
     ids = np.unique(np.asarray(ids).ravel())
     shown = ", ".join(str(int(i)) for i in ids[:limit])
     return shown if ids.size <= limit else f"{shown}, … ({ids.size} in all)"

@@ -38,7 +38,8 @@ def geodesic_path(mesh: TriMesh, a: SurfacePoints, b: SurfacePoints) -> Path:
 
 
 def transport(mesh: TriMesh, path: Path, z) -> np.ndarray:
-    """Parallel-transport tangent vectors ``z`` (in the path's start basis) to its end basis.
+    """(...) complex: tangent vectors ``z`` (...) complex (any shape, a scalar too) in the path's start
+    basis, parallel-transported to its end basis.
 
     Along each straight segment the angle to the path is kept (Levi-Civita transport across faces and
     edges); at a vertex the path bends around, vectors keep their coordinates in the vertex's basis.

@@ -424,5 +424,5 @@ class TriMesh:
         return readonly(np.divide(N, norm, out=np.zeros_like(N), where=norm > 0))
 
     def face_axes(self, faces) -> np.ndarray:
-        """(k, 2, 3) 3D x and y axes of the given faces' frames."""
+        """(k, 2, 3) 3D x and y axes of the frames of the given ``faces`` (k,)."""
         return self._face_axes[np.asarray(faces, dtype=np.int64)]

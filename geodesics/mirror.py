@@ -158,7 +158,8 @@ def _plane(point, normal) -> tuple[np.ndarray, np.ndarray]:
 def reflect(X, point=(0.0, 0.0, 0.0), normal=(1.0, 0.0, 0.0)) -> np.ndarray:
     """(..., 3) mirror images of positions X (..., 3) through the plane at ``point`` with ``normal``.
 
-    Through a coordinate plane (the default x = 0) this only negates one coordinate, exactly.
+    ``point`` and ``normal`` are (3,). Through a coordinate plane (the default x = 0) this only negates one
+    coordinate, exactly.
     """
     p, n = _plane(point, normal)
     X = np.asarray(X, dtype=np.float64)

@@ -89,9 +89,9 @@ class ContactPatch:
 
     @classmethod
     def parameterized(cls, axis: Axis, points: SurfacePoints, binding, coords) -> ContactPatch:
-        """A patch from its parameterization as stored (a contact file, a subset): per point ``k`` of
-        ``points`` (on ``axis.mesh``), the index ``binding[k]`` of its axis point and its complex offset
-        ``coords[k]`` in that point's tangent frame. Nothing is traced; the shapes and indices are
+        """A patch from its parameterization as stored (a contact file, a subset): for the k ``points`` (on
+        ``axis.mesh``), ``binding`` (k,) int, the index of each one's axis point, and ``coords`` (k,)
+        complex, its offset in that point's tangent frame. Nothing is traced; the shapes and indices are
         checked."""
         binding, coords = np.asarray(binding), np.asarray(coords, np.complex128)
         k, m = len(points), len(axis)
@@ -157,7 +157,8 @@ class ContactPatch:
         return ContactPatch(self.mesh, self.points, axis)
 
     def subset(self, keep) -> ContactPatch:
-        """The patch with only the points ``keep`` selects (a bool mask or indices), around the same axis."""
+        """The patch with only the points ``keep`` selects ((k,) bool mask or (j,) indices), around the same
+        axis."""
         index = np.arange(len(self))[np.asarray(keep)]
         if index.size == 0:
             raise ContactError("that would leave the patch without points")

@@ -140,7 +140,7 @@ class Fields:
         return values
 
     def indices(self, key: str, count: int | None = None) -> np.ndarray:
-        """A list of integers as an int64 array; with ``count``, each an index in ``0..count-1``."""
+        """(n,) int64: a flat list of n integers; with ``count``, each an index in ``0..count-1``."""
         values = self.list(key)
         if not all(is_integer(v) for v in values):
             self._raise(key, "must be a list of integer indices")
@@ -172,7 +172,7 @@ class Fields:
         return out
 
     def complex(self, key: str) -> np.ndarray:
-        """A list of finite ``[real, imaginary]`` pairs as a complex128 array."""
+        """(n,) complex128: a list of n finite ``[real, imaginary]`` pairs (an (n, 2) array in the file)."""
         pairs = self.numbers(key, (None, 2))
         return pairs[:, 0] + 1j * pairs[:, 1]
 

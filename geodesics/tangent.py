@@ -19,7 +19,8 @@ from .points import SurfacePoints
 
 
 def corner_halfedges(mesh: TriMesh, faces: np.ndarray, vertices: np.ndarray) -> np.ndarray:
-    """(k,) halfedge of ``faces[i]`` that starts at ``vertices[i]`` (the face's corner at that vertex)."""
+    """(k,) halfedge of ``faces[i]`` that starts at ``vertices[i]`` (the face's corner at that vertex), for
+    ``faces`` and ``vertices`` (k,)."""
     match = mesh.faces[faces] == np.asarray(vertices)[:, None]
     bad = np.flatnonzero(~match.any(1))
     if bad.size:
@@ -39,7 +40,8 @@ def _edge_direction(mesh: TriMesh, halfedges: np.ndarray) -> np.ndarray:
 
 
 def face_to_vertex(mesh: TriMesh, halfedges: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """A direction given in face(h)'s frame, at the tail vertex of h, expressed in that vertex's basis.
+    """(k,) complex: directions ``z`` (k,) complex given in face(h)'s frame, at the tail vertex of each
+    halfedge h of ``halfedges`` (k,), expressed in that vertex's basis.
 
     The direction is measured on the surface from the corner's first edge, so a direction pointing out
     of face(h) is carried around the vertex as far as its angle says.
@@ -54,8 +56,9 @@ def face_to_vertex(mesh: TriMesh, halfedges: np.ndarray, z: np.ndarray) -> np.nd
 
 
 def vertex_to_face(mesh: TriMesh, vertices: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A direction in a vertex's basis, as ``(h, z_face)``: the corner halfedge h at the vertex whose
-    face contains the direction, and the direction in face(h)'s frame."""
+    """Directions ``z`` (k,) complex in the bases of ``vertices`` (k,), as ``(h, z_face)``: the (k,) corner
+    halfedge h at the vertex whose face contains the direction, and the (k,) complex direction in face(h)'s
+    frame."""
     v = np.asarray(vertices, dtype=np.int64)
     z = np.asarray(z, dtype=np.complex128)
     theta = mesh.angle_sums[v]
@@ -78,7 +81,8 @@ def vertex_to_face(mesh: TriMesh, vertices: np.ndarray, z: np.ndarray) -> tuple[
 
 
 def face_rotation(mesh: TriMesh, source: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """(k,) unit complex r with ``z_target = r * z_source`` for faces that are equal or share an edge."""
+    """(k,) unit complex r with ``z_target = r * z_source`` for faces ``source`` and ``target`` (k,) that are
+    equal or share an edge."""
     source = np.asarray(source, dtype=np.int64)
     target = np.asarray(target, dtype=np.int64)
     h = 3 * source[:, None] + np.arange(3)
@@ -93,8 +97,9 @@ def face_rotation(mesh: TriMesh, source: np.ndarray, target: np.ndarray) -> np.n
 
 
 def to_face_frame(mesh: TriMesh, points: SurfacePoints, z) -> tuple[np.ndarray, np.ndarray]:
-    """Directions given in each point's basis, as ``(faces, z_face)`` in the frame of a face holding the
-    point (for a vertex point: the face the direction points into)."""
+    """Directions ``z`` (k,) complex (or one for all) given in each point's basis, as ``(faces, z_face)``,
+    both (k,), in the frame of a face holding the point (for a vertex point: the face the direction points
+    into)."""
     z = np.broadcast_to(np.asarray(z, dtype=np.complex128), (len(points),)).copy()
     faces = points.faces.copy()
     v = points.vertex_ids(mesh)
@@ -106,7 +111,8 @@ def to_face_frame(mesh: TriMesh, points: SurfacePoints, z) -> tuple[np.ndarray, 
 
 
 def from_face_frame(mesh: TriMesh, points: SurfacePoints, faces, z_face) -> np.ndarray:
-    """Directions given in the frame of ``faces`` (each holding its point), in each point's basis.
+    """(k,) complex: directions ``z_face`` (k,) complex given in the frames of ``faces`` (k,) (each holding
+    its point), in each point's basis.
 
     For a point on an edge, ``faces`` may be either face of that edge.
     """
@@ -123,8 +129,8 @@ def from_face_frame(mesh: TriMesh, points: SurfacePoints, faces, z_face) -> np.n
 
 
 def arrival_to_basis(mesh: TriMesh, points: SurfacePoints, faces, z_face) -> np.ndarray:
-    """Directions of travel *arriving* at points, given in the frames of ``faces`` (each holding its
-    point), in the points' bases.
+    """(k,) complex: directions of travel ``z_face`` (k,) complex *arriving* at points, given in the frames
+    of ``faces`` (k,) (each holding its point), in the points' bases.
 
     At a vertex, the direction of arrival is its straight-on continuation: the way back rotated by π in
     the vertex basis (Polthier and Schmies' straightest rule), so an arrival followed by an unchanged
@@ -141,7 +147,8 @@ def arrival_to_basis(mesh: TriMesh, points: SurfacePoints, faces, z_face) -> np.
 
 
 def change_basis(mesh: TriMesh, z, source: SurfacePoints, target: SurfacePoints) -> np.ndarray:
-    """Re-express directions from the bases of ``source`` points in the bases of ``target`` points.
+    """(k,) complex: directions ``z`` (k,) complex (or one for all) re-expressed from the bases of
+    ``source`` points (k) in the bases of ``target`` points (k).
 
     Each source/target pair must share a face (or, for edge points, an edge): a face basis and the
     basis of one of its vertices, two vertices of one face, two faces of one edge.
@@ -256,14 +263,15 @@ def tangent_axes(mesh: TriMesh, points: SurfacePoints) -> np.ndarray:
 
 
 def tangent_to_3d(mesh: TriMesh, points: SurfacePoints, z) -> np.ndarray:
-    """(k, 3) tangent vectors, given as complex numbers in each point's basis, as vectors in space."""
+    """(k, 3) tangent vectors ``z`` (k,) complex (or one for all) in each point's basis, as vectors in
+    space."""
     axes = tangent_axes(mesh, points)
     z = np.broadcast_to(np.asarray(z, dtype=np.complex128), (len(points),))
     return z.real[:, None] * axes[:, 0] + z.imag[:, None] * axes[:, 1]
 
 
 def tangent_from_3d(mesh: TriMesh, points: SurfacePoints, vectors) -> np.ndarray:
-    """(k,) complex: vectors in space projected onto each point's tangent basis."""
+    """(k,) complex: ``vectors`` (k, 3) in space projected onto each point's tangent basis."""
     axes = tangent_axes(mesh, points)
     X = np.asarray(vectors, dtype=np.float64).reshape(-1, 3)
     return np.einsum("kd,kd->k", X, axes[:, 0]) + 1j * np.einsum("kd,kd->k", X, axes[:, 1])

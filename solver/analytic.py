@@ -24,7 +24,8 @@ STEP = 1e-30
 
 
 def directions(x: np.ndarray, free: np.ndarray) -> np.ndarray:
-    """(k, n) complex: x (n,) with an imaginary step on one free entry per row (k = free entries)."""
+    """(k, n) complex: x (n,) with an imaginary step on one free entry per row (k = entries flagged in
+    ``free`` (n,); a single unstepped row when there are none)."""
     x = np.asarray(x, dtype=np.float64)
     index = np.flatnonzero(free)
     X = np.repeat(x[None].astype(np.complex128), max(index.size, 1), axis=0)
@@ -33,7 +34,7 @@ def directions(x: np.ndarray, free: np.ndarray) -> np.ndarray:
 
 
 def value(y: np.ndarray) -> np.ndarray:
-    """The value carried by a complex-step result: the real part of its first direction."""
+    """(...) the value carried by a complex-step result (k, ...): the real part of its first direction."""
     y = np.asarray(y)
     return (y[0].real if np.iscomplexobj(y) else y[0]).copy()
 
@@ -45,13 +46,15 @@ def derivative(y: np.ndarray) -> np.ndarray:
 
 
 def norm(v, axis: int = -1, keepdims: bool = False):
-    """Euclidean norm ``sqrt(Σ v²)`` along ``axis``, analytic in complex-step inputs."""
+    """Euclidean norm ``sqrt(Σ v²)`` of ``v`` along ``axis``, analytic in complex-step inputs: (..., n) gives
+    (...) for the last axis (``keepdims``: (..., 1))."""
     v = np.asarray(v)
     return np.sqrt(np.sum(v * v, axis=axis, keepdims=keepdims))
 
 
 def atan2(y, x):
-    """``arctan2`` of real or complex-step arrays (the derivative ``(x dy - y dx) / (x² + y²)``)."""
+    """(...) ``arctan2`` of real or complex-step arrays ``y``, ``x`` (broadcast to (...)), with the derivative
+    ``(x dy - y dx) / (x² + y²)``."""
     y, x = np.asarray(y), np.asarray(x)
     angle = np.arctan2(y.real, x.real)
     if not (np.iscomplexobj(y) or np.iscomplexobj(x)):
@@ -64,7 +67,8 @@ def atan2(y, x):
 
 
 def acos(x):
-    """``arccos`` clamped to [-1, 1] (Blender's ``saacos``); clamped entries have zero derivative.
+    """(...) ``arccos`` of ``x`` (...) clamped to [-1, 1] (Blender's ``saacos``); clamped entries have zero
+    derivative.
 
     numpy's complex ``arccos`` loses an imaginary part this small, so the derivative is applied here.
     """
@@ -72,7 +76,8 @@ def acos(x):
 
 
 def asin(x):
-    """``arcsin`` clamped to [-1, 1] (Blender's ``saasin``); clamped entries have zero derivative."""
+    """(...) ``arcsin`` of ``x`` (...) clamped to [-1, 1] (Blender's ``saasin``); clamped entries have zero
+    derivative."""
     return _clamped(np.arcsin, 1.0, x)
 
 

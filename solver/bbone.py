@@ -1273,7 +1273,8 @@ class BBoneStack:
         )  # type: ignore[return-value]
 
     def gather(self, pose) -> tuple:
-        """``(poses, starts, ends, start_parents, end_parents)`` for :func:`stack_deform_matrices`, from
+        """``(poses, starts, ends, start_parents, end_parents)`` for :func:`stack_deform_matrices`, each
+        (..., g, 4, 4) (the bones' batch shapes broadcast) or None where the stack needs none, from
         ``pose``, a mapping or a callable giving a bone's posed matrix (..., 4, 4) by name; a bone
         without a handle gets its own pose in the handle's place."""
         get = pose if callable(pose) else pose.__getitem__
@@ -1868,7 +1869,7 @@ def stack_deform_matrices(
     -------
     (..., g, segments + 1, 4, 4)
         :func:`deform_matrices` of each bone; the leading dimensions are those of the arguments,
-        broadcast.
+        broadcast. A stack of plain bones (``segments == 1``) gives two copies, (..., g, 2, 4, 4).
 
     Notes
     -----

@@ -34,7 +34,8 @@ RELIABILITY_POSES = 10
 
 @dataclass(frozen=True)
 class Scene:
-    """A hand, an object and paired contacts: hand points, target points and normals on the object."""
+    """A hand, an object and paired contacts: hand points (k), target points (k, 3) and normals (k, 3) on
+    the object, and the (d,) pose ``theta`` the contacts were taken from."""
 
     hand: hands.Hand
     object: TriMesh
@@ -106,7 +107,8 @@ def bench_problem(
     """The benchmark solve: the human hand (54 DOF), ``n_contacts`` palm-side points posed at the cylinder
     grasp with the root moved 2 cm and turned 10°; targets are those posed points with opposed normals.
 
-    Returns the hand, the hand points, the targets, their normals and the ground-truth pose.
+    Returns the hand, the hand points (SurfacePoints (k), k = ``n_contacts``), the targets (k, 3), their
+    normals (k, 3) and the (d,) ground-truth pose.
     """
     scene = cylinder_grasp()
     hand = scene.hand
@@ -136,7 +138,8 @@ def _recovery_rate(algorithm: str, poses: int) -> int:
 
 
 def random_pose(rig, rng: np.random.Generator) -> np.ndarray:
-    """A random pose: joints uniform within their limits, the root anywhere within 5 cm and ±90°."""
+    """(d,) a random pose of ``rig``: joints uniform within their limits, the root anywhere within 5 cm and
+    ±90° (each Euler angle)."""
     theta = np.zeros(rig.n_dofs)
     joints = rig.dof_bone != 0
     theta[joints] = rng.uniform(rig.lower[joints], rig.upper[joints])
@@ -146,8 +149,8 @@ def random_pose(rig, rng: np.random.Generator) -> np.ndarray:
 
 
 def perturbed_root(truth: np.ndarray, rng: np.random.Generator, shift: float = 0.02, degrees: float = 15.0):
-    """The rest pose with the root of ``truth`` moved by up to ``shift`` and turned by up to ``degrees``
-    about a random axis (in the root's rest frame)."""
+    """(d,) the rest pose with the root of ``truth`` (d,) moved by up to ``shift`` and turned by up to
+    ``degrees`` about a random axis (in the root's rest frame)."""
     start = np.zeros_like(truth)
     direction = rng.normal(size=3)
     start[:3] = truth[:3] + direction / np.linalg.norm(direction) * rng.uniform(0.0, shift)

@@ -176,13 +176,13 @@ def _dtype(*arrays):
 
 
 def dot(a, b):
-    """(...) ``a · b`` over the last axis (no conjugation)."""
+    """(...) ``a · b`` of ``a``, ``b`` (..., n) over the last axis (no conjugation)."""
     a, b = np.asarray(a), np.asarray(b)
     return (a[..., None, :] @ b[..., :, None])[..., 0, 0]
 
 
 def cross(a, b):
-    """(..., 3) ``a × b`` (analytic in complex inputs)."""
+    """(..., 3) ``a × b`` of ``a``, ``b`` (..., 3) (analytic in complex inputs)."""
     a, b = np.asarray(a), np.asarray(b)
     products = a[..., _CROSS_A] * b[..., _CROSS_B]
     return products[..., 0, :] - products[..., 1, :]
@@ -247,7 +247,7 @@ def inverse_affine(M):
 
 
 def cbrt_abs(x):
-    """``cbrtf(fabsf(x))``, analytic away from 0 (0 gives 0)."""
+    """(...) ``cbrtf(fabsf(x))`` of ``x`` (...), analytic away from 0 (0 gives 0)."""
     x = np.asarray(x)
     a = np.where(x.real < 0, -x, x)
     ok = a.real > 0
@@ -269,7 +269,8 @@ def size_fix_shear(M):
 
 
 def rescale(M, scale):
-    """``rescale_m4``: the three axes (columns) of ``M`` multiplied by ``scale`` (..., 3)."""
+    """(..., 4, 4) ``rescale_m4``: a copy of ``M`` (..., 4, 4) (or (..., 3, 3)) with its three axes
+    (columns) multiplied by ``scale`` (..., 3), the batch dimensions broadcast."""
     M, scale = np.asarray(M), np.asarray(scale)
     if M.shape[:-2] == scale.shape[:-1] and (M.dtype == scale.dtype or M.dtype == np.complex128):
         out = M.copy()
@@ -281,7 +282,8 @@ def rescale(M, scale):
 
 
 def normalize_axes(M):
-    """``normalize_m4_ex``: (``M`` with unit axes, axis lengths (..., 3))."""
+    """``normalize_m4_ex``: (a copy of ``M`` (..., 4, 4) with unit axes, axis lengths (..., 3)); axes
+    with ``|axis|² <= 1e-35`` become zero with length 0."""
     M = np.asarray(M)
     A = M[..., :3, :3]
     d = column_norms_squared(A)
@@ -297,7 +299,8 @@ def normalize_axes(M):
 
 
 def orthogonalize_stable(M, axis: int = 1, unit: bool = False):
-    """``orthogonalize_m4_stable``: remove the shear of ``M`` (..., 4, 4) around one axis.
+    """(..., 4, 4) ``orthogonalize_m4_stable``: a copy of ``M`` (..., 4, 4) without its shear around one
+    axis.
 
     The other two axes are projected off the primary one, then turned symmetrically away from each other
     until perpendicular (only when their angle's cosine is within ``(1e-4, 1 - FLT_EPSILON)``), rescaled
@@ -372,8 +375,9 @@ def _orthogonalize_stable(M, axis, unit):
 
 
 def decompose(M):
-    """``mat4_to_loc_rot_size``: (location (..., 3), rotation (..., 3, 3), size (..., 3)); a negative
-    determinant is given to the size (all three negated) so that the rotation stays proper."""
+    """``mat4_to_loc_rot_size`` of ``M`` (..., 4, 4): (location (..., 3), rotation (..., 3, 3), size
+    (..., 3)); a negative determinant is given to the size (all three negated) so that the rotation stays
+    proper."""
     M = np.asarray(M)
     A = M[..., :3, :3]
     d = column_norms_squared(A)
@@ -605,7 +609,8 @@ def quaternion_to_matrix(q) -> np.ndarray:
 
 
 def axis_angle_matrix(axis, sin, cos) -> np.ndarray:
-    """(..., 3, 3) ``axis_angle_normalized_to_mat3_ex``: rotation about a unit axis (..., 3)."""
+    """(..., 3, 3) ``axis_angle_normalized_to_mat3_ex``: rotation about a unit ``axis`` (..., 3) by the
+    angle of ``sin`` and ``cos`` (...)."""
     axis, sin, cos = np.asarray(axis), np.asarray(sin), np.asarray(cos)
     ico = 1.0 - cos
     outer = axis[..., :, None] * axis[..., None, :] * ico[..., None, None]
@@ -623,8 +628,9 @@ _QCASE_SIGN = np.array([[-1, 0, 1, 1], [-1, 1, 0, 1], [-1, 1, 1, 0], [0, -1, -1,
 
 
 def matrix_to_quaternion(R) -> np.ndarray:
-    """(..., 4) ``mat3_to_quat``: axes normalized, a negative determinant negated, then
-    ``mat3_normalized_to_quat_fast`` (Mike Day's method, ``w >= 0``)."""
+    """(..., 4) ``mat3_to_quat`` of matrices ``R`` (..., 3, 3) (or the 3×3 blocks of (..., 4, 4)): axes
+    normalized, a negative determinant negated, then ``mat3_normalized_to_quat_fast`` (Mike Day's method,
+    ``w >= 0``)."""
     R = np.asarray(R)[..., :3, :3]
     units, _ = normalize(np.swapaxes(R, -1, -2))
     m = units  # m[..., i, j] is Blender's mat[i][j]
@@ -820,6 +826,7 @@ class Parenting:
 
     @property
     def parent_pose(self):
+        """(g, K, 4, 4) the parents' pose matrices (not needed for roots)."""
         if self._parent_pose is None and not self.stack.root:
             raise SolverError(f"bones {', '.join(self.stack.names[:4])} need their parents' poses")
         return self._parent_pose
@@ -831,25 +838,29 @@ class Parenting:
 
     @property
     def rotscale(self):
+        """(g, K, 4, 4) the rotation and scale transform."""
         return self._calc()[0]
 
     @property
     def loc(self):
-        """The location transform, or None when it is ``rotscale`` itself."""
+        """(g, K, 4, 4) the location transform, or None when it is ``rotscale`` itself."""
         return self._calc()[1]
 
     @property
     def post(self):
+        """(g, K, 3) the post scale, or None for none."""
         return self._calc()[2]
 
     @property
     def rotscale_inverse(self):
+        """(g, K, 4, 4) the inverse of :attr:`rotscale`."""
         if self._rotscale_inverse is None:
             self._rotscale_inverse = inverse_affine(self.rotscale)
         return self._rotscale_inverse
 
     @property
     def loc_inverse(self):
+        """(g, K, 4, 4) the inverse of :attr:`loc`, or None when that is None."""
         if self._loc_inverse is None and self.loc is not None:
             self._loc_inverse = inverse_affine(self.loc)
         return self._loc_inverse
@@ -978,14 +989,18 @@ def _unsingle(A, lead) -> np.ndarray:
 
 @dataclass(frozen=True)
 class ParentTransform:
-    """Blender's ``BoneParentTransform``: how a bone's local matrix becomes its pose matrix."""
+    """Blender's ``BoneParentTransform``: how a bone's local matrix becomes its pose matrix.
+
+    ``rotscale`` and ``loc`` are (..., 4, 4), ``post_scale`` (..., 3), for a batch (...) of parent poses.
+    """
 
     rotscale: np.ndarray
     loc: np.ndarray
     post_scale: np.ndarray
 
     def apply(self, matrix) -> np.ndarray:
-        """``BKE_bone_parent_transform_apply``."""
+        """(..., 4, 4) ``BKE_bone_parent_transform_apply``: local matrices ``matrix`` (..., 4, 4) as pose
+        matrices (the batch dimensions broadcast with the transform's)."""
         matrix = np.asarray(matrix)
         out = self.rotscale @ matrix
         out = with_translation(out, transform_point(self.loc, matrix[..., :3, 3]))
@@ -1021,14 +1036,18 @@ def parent_transform(bone: Bone, parent: Bone | None, parent_pose=None) -> Paren
 
 
 def bone_to_pose(bone: Bone, parent: Bone | None, parent_pose, local) -> np.ndarray:
-    """(..., 4, 4) ``BKE_armature_mat_bone_to_pose``: a local matrix (..., 4, 4) as a pose matrix."""
+    """(..., 4, 4) ``BKE_armature_mat_bone_to_pose``: a local matrix ``local`` (..., 4, 4) as a pose matrix,
+    under the parent's pose matrix ``parent_pose`` (..., 4, 4) (ignored for a root bone); the batch
+    dimensions broadcast."""
     stack = BoneStack.of([bone], [parent])
     lead, (P, L) = _single(None if parent is None else parent_pose, local)
     return _unsingle(stack.parenting(P).to_pose(L), lead)
 
 
 def pose_to_bone(bone: Bone, parent: Bone | None, parent_pose, pose) -> np.ndarray:
-    """(..., 4, 4) ``BKE_armature_mat_pose_to_bone``: a pose matrix (..., 4, 4) as a local matrix."""
+    """(..., 4, 4) ``BKE_armature_mat_pose_to_bone``: a pose matrix ``pose`` (..., 4, 4) as a local matrix,
+    under the parent's pose matrix ``parent_pose`` (..., 4, 4) (ignored for a root bone); the batch
+    dimensions broadcast."""
     stack = BoneStack.of([bone], [parent])
     lead, (P, M) = _single(None if parent is None else parent_pose, pose)
     return _unsingle(stack.parenting(P).to_local(M), lead)
@@ -1193,6 +1212,10 @@ def polar(A, shared_batch: bool = False):
     shared_batch : bool
         ``A`` is in the stack layout (g, K, 3, 3) and every batch entry has the same real part
         (:func:`shared`): the SVD is taken once per bone.
+
+    Returns
+    -------
+    U, P : (..., 3, 3) ndarray
     """
     A = np.asarray(A)
     complex_ = A.dtype == np.complex128
@@ -1226,8 +1249,9 @@ def _acos(c):
 
 
 def slerp(a, b, t):
-    """(..., 4) ``interp_qt_qtqt``: spherical interpolation along the shorter arc (``a`` negated when
-    ``a · b < 0``), linear when the quaternions are within ``1e-4`` of parallel, not renormalized."""
+    """(..., 4) ``interp_qt_qtqt``: spherical interpolation from quaternions ``a`` to ``b`` (..., 4) by
+    ``t`` (...) along the shorter arc (``a`` negated when ``a · b < 0``), linear when the quaternions are
+    within ``1e-4`` of parallel, not renormalized."""
     a, b, t = np.asarray(a), np.asarray(b), np.asarray(t)
     cos = dot(a, b)
     if cos.size and cos.real.min() < 0:

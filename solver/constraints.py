@@ -304,7 +304,8 @@ class Constraint:
 
 @dataclass(frozen=True, eq=False)
 class TargetBone:
-    """What a constraint needs of a bone it targets: its rest data, its parent's, and their poses."""
+    """What a constraint needs of a bone it targets: its rest data, its parent's, and their poses
+    (``pose`` and ``parent_pose`` (..., 4, 4); ``parent_pose`` None when not needed)."""
 
     bone: Bone
     parent: Bone | None
@@ -397,7 +398,8 @@ def _unit3(M):
 
 
 def matrix_to_euler(M, order: str):
-    """(..., 3) ``mat4_to_eulO``: axes normalized, the solution with the smaller ``Σ|angle|``."""
+    """(..., 3) ``mat4_to_eulO`` of ``M`` (..., 4, 4) or (..., 3, 3): axes normalized, the solution with
+    the smaller ``Σ|angle|``."""
     return normalized_matrix_to_euler(_unit3(M), order)
 
 
@@ -411,7 +413,8 @@ def normalized_matrix_to_euler(M, order: str):
 
 
 def compatible_euler(eul, old):
-    """(..., 3) ``compatible_eul``: ``eul`` shifted by turns to be closest to ``old``."""
+    """(..., 3) ``compatible_eul``: ``eul`` (..., 3) shifted by turns to be closest to ``old`` (..., 3) (the
+    two broadcast)."""
     old = np.asarray(old)
     eul = np.asarray(eul)
     if eul.shape != old.shape:
@@ -433,7 +436,8 @@ def compatible_euler(eul, old):
 
 
 def matrix_to_compatible_euler(M, old, order: str):
-    """(..., 3) ``mat4_to_compatible_eulO``: the solution closest to ``old`` (..., 3)."""
+    """(..., 3) ``mat4_to_compatible_eulO`` of ``M`` (..., 4, 4) or (..., 3, 3): the solution closest to
+    ``old`` (..., 3)."""
     e1, e2 = _eulo2(_unit3(M), order)
     e1, e2 = compatible_euler(e1, old), compatible_euler(e2, old)
     old = np.asarray(old).real
@@ -1340,7 +1344,8 @@ def _limit_scale(cs, cob, tars, ctx):
 
 def distfactor_to_bone(co, head, tail, rad_head, rad_tail, rdist):
     """(...) ``distfactor_to_bone``: envelope weight of point ``co`` (..., 3) for a bone ``head → tail``
-    (radii and distance: floats or arrays broadcasting against ``co``'s leading dimensions)."""
+    ((3,) or (..., 3); radii and distance: floats or arrays broadcasting against ``co``'s leading
+    dimensions)."""
     co = np.asarray(co)
     rad_head, rad_tail, rdist = (np.asarray(x, dtype=np.float64) for x in (rad_head, rad_tail, rdist))
     bdelta, length = normalize(np.asarray(tail) - np.asarray(head))
@@ -1814,6 +1819,8 @@ def target_matrix(
     A bone target is taken at ``head_tail`` along the bone (``pose_head`` to ``pose_tail``, orientation
     of its pose matrix), put in world space by the armature's ``world`` matrix, then converted to the
     target space as the target bone's space (``LOCAL_OWNER_ORIENT`` uses the owner's rest orientation).
+    The target bone's poses in ``targets`` (:class:`TargetBone`) and ``custom``, the ``CUSTOM`` space's world
+    matrix (..., 4, 4) or None, give the leading dimensions ``...`` (broadcast).
     """
     world = World.of(world)
     single = Constraint(
@@ -1843,7 +1850,9 @@ def target_matrix(
 def solve(bone: Bone, parent: Bone | None, parent_pose, pose, constraints, targets, world) -> np.ndarray:
     """(..., 4, 4) ``BKE_constraints_solve``: a pose matrix (..., 4, 4) after the constraints.
 
-    Parameters are those of :func:`pose_bone`; ``pose`` is the bone's pose matrix before constraints.
+    Parameters are those of :func:`pose_bone`, with ``pose`` (..., 4, 4) the bone's pose matrix before
+    constraints in place of ``local``; ``parent_pose`` (..., 4, 4) (None for a root bone) and the targets'
+    poses broadcast against it.
     """
     stack = BoneStack.of([bone], [parent])
     world = World.of(world)

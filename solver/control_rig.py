@@ -57,7 +57,8 @@ class ControlKinematics:
         return np.bincount(self.owners[hit], weights=per[hit], minlength=self.n_dofs)
 
     def jacobian(self, weights: np.ndarray, rest: np.ndarray) -> np.ndarray:
-        """(m, 3, d) derivatives of ``Σ_s weights[v, s] S_s [rest_v; 1]`` with respect to θ."""
+        """(m, 3, d) derivatives of ``Σ_s weights[v, s] S_s [rest_v; 1]`` (weights (m, s) dense, rest (m, 3))
+        with respect to θ."""
         full = np.zeros((self.n_dofs, *self.skinning.shape))
         j, s = np.nonzero(self.owners >= 0)
         full[self.owners[j, s], s] = self.tangents[j, s]
@@ -274,8 +275,9 @@ class ControlRig:
         return np.array(owners, dtype=np.int64)
 
     def segment_weights(self, weights, rest_vertices) -> sparse.csr_matrix:
-        """(n, s) each vertex's weight per deformer: a B-Bone's weight split between the two segments its
-        rest position falls between (Blender's ``b_bone_deform``), a plain bone's kept."""
+        """(n, s) each vertex's weight per deformer, from ``weights`` (n, b) per deform bone (sparse or
+        dense, in ``deform_bones`` order) and ``rest_vertices`` (n, 3): a B-Bone's weight split between the
+        two segments its rest position falls between (Blender's ``b_bone_deform``), a plain bone's kept."""
         W = sparse.csc_matrix(weights)
         X = np.asarray(rest_vertices, dtype=np.float64)
         columns = []
@@ -319,6 +321,8 @@ class ControlRig:
             raise SolverError(f"{name!r} is not a control the solve poses") from None
 
     def check_theta(self, theta, what: str = "theta") -> np.ndarray:
+        """(d,) float64 copy of θ; raises SolverError (naming ``what``) unless it has one finite value per
+        DOF."""
         t = np.array(theta, dtype=np.float64).reshape(-1)
         if t.size != self.n_dofs:
             raise SolverError(f"{what} needs {self.n_dofs} values (one per DOF), got {t.size}")
@@ -328,11 +332,13 @@ class ControlRig:
         return t
 
     def clip(self, theta) -> np.ndarray:
+        """θ (d,) within the limits: rotations a whole turn out are wrapped back (the same pose), the rest
+        clipped (:func:`solver.rig.into_limits`). One pose only, unlike :meth:`solver.Rig.clip`."""
         return into_limits(self.check_theta(theta), self.is_rotation, self.lower, self.upper)
 
     def kinematics(self, theta, derivatives: bool = True, dofs=None) -> ControlKinematics:
-        """Skinning matrices at pose θ and, unless ``derivatives`` is False, their derivatives with
-        respect to the DOFs ``dofs`` (default all; the others' derivatives are left out as zero).
+        """Skinning matrices at pose θ (d,) and, unless ``derivatives`` is False, their derivatives with
+        respect to the DOFs ``dofs`` (indices, default all; the others' derivatives are left out as zero).
 
         Derivatives are complex steps along one direction per *colour* of DOFs, not per DOF: DOFs that no
         skinning matrix depends on together (the index finger's and the ring finger's) share a colour and

@@ -188,13 +188,15 @@ class Hand(SkinnedMesh):
         self.chains: dict[str, tuple[int, ...]] = dict(chains)
 
     def flexion_dofs(self, chain: str) -> np.ndarray:
-        """DOF indices that curl a chain into the palm (each bone's x rotation), proximal first."""
+        """(c,) DOF indices that curl a chain of c bones into the palm (each bone's x rotation), proximal
+        first."""
         if chain not in self.chains:
             raise SolverError(f"the {self.kind} hand has no chain {chain!r}; it has {', '.join(self.chains)}")
         return np.array([self.rig.rotation_dof(b, 0) for b in self.chains[chain]])
 
     def palmar_faces(self, bone: int, min_alignment: float = 0.5) -> np.ndarray:
-        """Faces skinned mostly to ``bone`` whose rest normal points to its palm side (its z axis)."""
+        """(f,) the faces skinned mostly to ``bone`` whose rest normal points to its palm side (its z axis,
+        the normal's component along it above ``min_alignment``), in increasing order."""
         W = self.weights.toarray()
         face_weight = W[self.mesh.faces].sum(1)  # (m, b)
         mine = np.argmax(face_weight, axis=1) == bone

@@ -388,7 +388,7 @@ class ContactIK:
         return float(np.sum(r - L2_SMOOTHING)), diff / (u2 * r[:, None])
 
     def distances(self, theta) -> np.ndarray:
-        """(k,) distance of each posed hand point from its target."""
+        """(k,) distance of each posed hand point from its target at θ (d,)."""
         p, _ = self.hand.posed_points(theta, self.hand_points)
         return np.linalg.norm(p - self.target_points, axis=1)
 
@@ -463,13 +463,13 @@ def minimize(
     progress: Callable[[Progress], bool | None] | None = None,
     start: tuple[float, dict] | None = None,
 ) -> tuple[np.ndarray, float, dict, int, str]:
-    """Minimize ``energy(θ) -> (E, terms)`` over the DOFs ``index`` of θ with NLopt; gradient-based
-    algorithms take ``energy_and_gradient(θ) -> (E, terms, dE/dθ)``.
+    """Minimize ``energy(θ) -> (E, terms)`` over the DOFs ``index`` (n,) of θ (d,) with NLopt;
+    gradient-based algorithms take ``energy_and_gradient(θ) -> (E, terms, dE/dθ (d,))``.
 
-    The free DOFs are optimized as ``θ[index] / scale`` (so locations and angles are of one size) within
-    the rig's bounds; the others keep θ's values. Returns the best pose seen (never NaN), its energy and
-    terms, the number of evaluations and the outcome (see :class:`SolveResult`). ``start`` is θ's energy
-    and terms when the caller has them already.
+    The free DOFs are optimized as ``θ[index] / scale`` (``scale`` (n,), so locations and angles are of one
+    size) within the rig's bounds; the others keep θ's values. Returns the best pose seen (d,) (never
+    NaN), its energy and terms, the number of evaluations and the outcome (see :class:`SolveResult`).
+    ``start`` is θ's energy and terms when the caller has them already.
     """
     start_energy, start_terms = start if start is not None else energy(theta)
     best = {"energy": start_energy, "theta": theta.copy(), "terms": start_terms}

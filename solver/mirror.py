@@ -115,7 +115,8 @@ def euler_to_quat(e, order: str = "XYZ") -> np.ndarray:
 
 
 def axis_angle_to_quat(axis, angle) -> np.ndarray:
-    """(..., 4) Blender's ``axis_angle_to_quat``: a zero axis gives the identity."""
+    """(..., 4) Blender's ``axis_angle_to_quat`` of ``axis`` (..., 3) and ``angle`` (...): a zero axis gives
+    the identity."""
     axis = np.asarray(axis, dtype=np.float64)
     angle = np.asarray(angle, dtype=np.float64)
     length_sq = (axis * axis).sum(-1)
@@ -127,7 +128,7 @@ def axis_angle_to_quat(axis, angle) -> np.ndarray:
 
 
 def quat_to_axis_angle(q) -> tuple[np.ndarray, np.ndarray]:
-    """Blender's ``quat_to_axis_angle``: ``(axis (..., 3), angle (...))``, angle in [0, 2π].
+    """Blender's ``quat_to_axis_angle`` of ``q`` (..., 4): ``(axis (..., 3), angle (...))``, angle in [0, 2π].
 
     Below a half-angle sine of 0.0005 the axis is not divided (so it is not unit length); a zero axis
     becomes +y.
@@ -297,10 +298,12 @@ class PoseChannel:
             setattr(pose_bone, name, value.tolist() if isinstance(value, np.ndarray) else value)
 
     def as_dict(self) -> dict:
+        """The channels by name: vector channels as their (3,) or (4,) arrays, the rest as floats and str."""
         return {name: getattr(self, name) for name in self.names()}
 
     def rotation(self) -> np.ndarray:
-        """The active rotation field (the one ``rotation_mode`` uses)."""
+        """The active rotation field (the one ``rotation_mode`` uses): ``rotation_euler`` (3,), or
+        ``rotation_quaternion`` or ``rotation_axis_angle`` (4,), read-only."""
         return self._field_of(self.rotation_mode)
 
     def _field_of(self, mode: str) -> np.ndarray:

@@ -54,7 +54,7 @@ def cylinder(radius: float = 0.03, height: float = 0.15, n_around: int = 32, n_a
 
 
 def box(size=(0.06, 0.06, 0.12), cells: int = 8) -> TriMesh:
-    """A closed box of the given side lengths around the origin, each side a ``cells`` x ``cells`` grid
+    """A closed box of side lengths ``size`` (3,) around the origin, each side a ``cells`` x ``cells`` grid
     of quads split into two triangles."""
     size = np.array([_positive(s, "size") for s in size])
     if size.size != 3:

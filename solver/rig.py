@@ -54,8 +54,9 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def into_limits(theta, is_rotation, lower, upper) -> np.ndarray:
-    """θ (..., d) brought within the DOF limits [lower, upper] (d,): a rotation outside them moves by
-    whole turns when that lands it inside (the same pose), then every value is clipped.
+    """θ (..., d) brought within the DOF limits [lower, upper] (d,): a rotation (``is_rotation`` (d,) bool)
+    outside them moves by whole turns when that lands it inside (the same pose), then every value is
+    clipped.
 
     Clipping alone would give another pose to an angle a turn away: an unwrapped root angle of
     8.06 rad clipped to the root's 2π limit is 102° off, wrapped back it is exact.
@@ -372,7 +373,8 @@ class Rig:
         return np.arange(self.n_bones)
 
     def segment_weights(self, weights, rest_vertices) -> sparse.csr_matrix:
-        """Weights per skinning matrix: a plain rig's bones each have one, so the weights themselves."""
+        """(n, b) weights per skinning matrix: a plain rig's bones each have one, so ``weights`` (n, b)
+        themselves, as a CSR matrix (``rest_vertices`` (n, 3) are not needed)."""
         return sparse.csr_matrix(weights)
 
     @property
@@ -398,7 +400,7 @@ class Rig:
             raise SolverError(f"the rig has no bone called {name!r}") from None
 
     def bone_dofs(self, bone: int | str) -> np.ndarray:
-        """DOF indices of one bone (6 for the root, 3 otherwise)."""
+        """(6,) DOF indices of the root bone, (3,) of any other, in increasing order."""
         b = self.bone_index(bone) if isinstance(bone, str) else int(bone)
         if not 0 <= b < self.n_bones:
             raise SolverError(f"bone index {b} is out of range 0..{self.n_bones - 1}")
@@ -442,11 +444,11 @@ class Rig:
     # ------------------------------------------------------------------ Blender round trip
 
     def euler(self, theta) -> np.ndarray:
-        """(b, 3) each bone's Euler angles (Blender's ``rotation_euler``)."""
+        """(b, 3) each bone's Euler angles (Blender's ``rotation_euler``) at θ (d,)."""
         return self.check_theta(theta)[3:].reshape(-1, 3)
 
     def rotations(self, theta) -> np.ndarray:
-        """(b, 3, 3) each bone's local rotation matrix."""
+        """(b, 3, 3) each bone's local rotation matrix at θ (d,)."""
         return self._rotations(self.euler(theta))
 
     def _rotations(self, angles: np.ndarray) -> np.ndarray:
@@ -457,7 +459,7 @@ class Rig:
         return R
 
     def basis(self, theta) -> np.ndarray:
-        """(b, 4, 4) each bone's local transform (Blender's ``pose_bone.matrix_basis``)."""
+        """(b, 4, 4) each bone's local transform (Blender's ``pose_bone.matrix_basis``) at θ (d,)."""
         t = self.check_theta(theta)
         B = np.zeros((self.n_bones, 4, 4))
         B[:, :3, :3] = self.rotations(t)
@@ -511,7 +513,7 @@ class Rig:
     # ------------------------------------------------------------------ forward kinematics
 
     def pose_matrices(self, theta) -> np.ndarray:
-        """(b, 4, 4) posed armature-space bone matrices (Blender's ``pose_bone.matrix``)."""
+        """(b, 4, 4) posed armature-space bone matrices (Blender's ``pose_bone.matrix``) at θ (d,)."""
         return self.kinematics(theta, derivatives=False).matrices
 
     def kinematics(self, theta, derivatives: bool = True, dofs=None) -> Kinematics:

@@ -151,7 +151,8 @@ class SkinnedMesh:
         return VertexSkin(self)
 
     def posed_points(self, theta, points: SurfacePoints) -> tuple[np.ndarray, np.ndarray]:
-        """Posed positions (k, 3) and unit normals (k, 3) of surface points of the rest mesh."""
+        """Posed positions (k, 3) and unit normals (k, 3) of surface points (k) of the rest mesh at pose
+        θ (d,)."""
         skin = self.point_skin([points])
         p, n, _ = skin.sets[0].geometry(
             skin.vertices.positions(self.rig.kinematics(theta, derivatives=False))
@@ -159,7 +160,8 @@ class SkinnedMesh:
         return p, n
 
     def vertex_jacobian(self, theta, vertex_ids=None) -> tuple[np.ndarray, np.ndarray]:
-        """Posed positions (m, 3) of vertices (default: all) and their Jacobians (m, 3, d)."""
+        """Posed positions (m, 3) of vertices ``vertex_ids`` (m,) (default: all) and their Jacobians
+        (m, 3, d), at pose θ (d,)."""
         ids = None if vertex_ids is None else self._check_vertex_ids(vertex_ids)
         skin = self.vertex_skin(ids)
         kin = self.rig.kinematics(theta)
@@ -168,7 +170,7 @@ class SkinnedMesh:
     def point_jacobian(
         self, theta, points: SurfacePoints
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Positions (k, 3), normals (k, 3) and their Jacobians (k, 3, d), (k, 3, d) at pose θ."""
+        """Positions (k, 3), normals (k, 3) and their Jacobians (k, 3, d), (k, 3, d) at pose θ (d,)."""
         skin = self.point_skin([points])
         kin = self.rig.kinematics(theta)
         J = skin.vertices.jacobian(kin)

@@ -44,7 +44,7 @@ class Cage:
         return np.array(self._attributes, dtype=np.float64).reshape(-1, self.n_attributes)
 
     def add_vertices(self, points, attributes) -> np.ndarray:
-        """Append vertices (k, 3) with attributes (k, a) (or one row for all); returns their indices."""
+        """Append vertices (k, 3) with attributes (k, a) (or one row for all); returns their (k,) indices."""
         P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         A = np.broadcast_to(np.asarray(attributes, dtype=np.float64), (len(P), self.n_attributes))
         start = self.n_vertices
@@ -67,7 +67,7 @@ class Cage:
         return len(self.faces) - 1
 
     def face_normal(self, face) -> np.ndarray:
-        """Newell normal (unnormalized, area-weighted) of a polygon."""
+        """(3,) Newell normal (unnormalized, area-weighted) of a polygon (its vertex indices)."""
         P = np.array([self._points[v] for v in face])
         return 0.5 * np.cross(P, np.roll(P, -1, axis=0)).sum(0)
 
@@ -230,7 +230,7 @@ def _subdivision_step(n: int, polys: list[np.ndarray]) -> tuple[sparse.csr_matri
 
 
 def quads_to_triangles(points, quads) -> np.ndarray:
-    """(2m, 3) triangles of quads (m, 4), each split along its shorter diagonal."""
+    """(2m, 3) triangles of quads (m, 4) of ``points`` (n, 3), each split along its shorter diagonal."""
     P = np.asarray(points, dtype=np.float64)
     Q = np.asarray(quads, dtype=np.int64)
     d02 = np.linalg.norm(P[Q[:, 0]] - P[Q[:, 2]], axis=1)

@@ -116,13 +116,14 @@ def _about(axis: int, angle: np.ndarray) -> np.ndarray:
 
 
 def from_theirs(rotation) -> np.ndarray:
-    """(..., 4) a rotation (quaternions, in the authors' bone-along-x frame) in our bone-along-y frame:
-    ``P R Pᵀ``."""
+    """(..., 4) rotations ``rotation`` (..., 4) (quaternions, in the authors' bone-along-x frame) in our
+    bone-along-y frame: ``P R Pᵀ``."""
     return rot.multiply(rot.multiply(_P, rotation), rot.conjugate(_P))
 
 
 def to_theirs(rotation) -> np.ndarray:
-    """(..., 4) the inverse of :func:`from_theirs`: ``Pᵀ R P``."""
+    """(..., 4) the inverse of :func:`from_theirs`: ``Pᵀ R P`` of rotations ``rotation`` (..., 4) in our
+    frame."""
     return rot.multiply(rot.multiply(rot.conjugate(_P), rotation), _P)
 
 

@@ -170,8 +170,9 @@ CRC_TABLE = _crc_table(0x2F)
 
 
 def crc8(data: bytes | bytearray | memoryview) -> int:
-    """CRC-8/AUTOSAR as the firmware computes it (``mlx90363.c``: ``ComputeCRCN``): polynomial 0x2F, no
-    reflection, initial value 0xFF, final complement. Check value: ``crc8(b"123456789") == 0xDF``."""
+    """CRC-8/AUTOSAR of ``data`` (bytes-like, any length), an int in 0..255, as the firmware computes it
+    (``mlx90363.c``: ``ComputeCRCN``): polynomial 0x2F, no reflection, initial value 0xFF, final
+    complement. Check value: ``crc8(b"123456789") == 0xDF``."""
     c = 0xFF
     table = CRC_TABLE
     for b in data:
@@ -459,8 +460,8 @@ def splitter_rotation(angles) -> np.ndarray:
 
 
 def splitter_angles(rotation) -> np.ndarray:
-    """(..., 3) the inverse of :func:`splitter_rotation` (radians; the middle angle in [0, π], the first 0
-    when the outlet is straight or reversed)."""
+    """(..., 3) the inverse of :func:`splitter_rotation`: the angles of quaternions ``rotation`` (..., 4)
+    (radians; the middle angle in [0, π], the first 0 when the outlet is straight or reversed)."""
     q = rot.normalize(rotation)
     m = rot.to_matrix(q)
     bend = np.arccos(np.clip(m[..., 1, 1], -1.0, 1.0))

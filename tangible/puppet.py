@@ -81,7 +81,8 @@ class JointBinding:
             )
 
     def bone_rotation(self, reading) -> np.ndarray:
-        """(..., 4) bone local rotations for joint readings (..., 4)."""
+        """(..., 4) bone local rotations for joint readings ``reading`` (..., 4): the joint's rotations as
+        unit quaternions (:func:`tangible.joint.joint_rotation` of the sensed angles, not the angles)."""
         return _bone_rotations(self.rest, self.pose, self.mount, reading)
 
 

@@ -297,7 +297,8 @@ class SplitterProgram:
         return np.round(res.x).astype(bool)
 
     def violations(self, x) -> list[str]:
-        """Rows of ``A x ≤ upper`` that binary ``x`` breaks (empty when feasible)."""
+        """The names (:attr:`rows`) of the rows of ``A x ≤ upper`` that binary ``x`` (n,) breaks (empty when
+        feasible)."""
         x = np.asarray(x, dtype=np.float64)
         return [r for r, lhs, u in zip(self.rows, self.A @ x, self.upper, strict=True) if lhs > u + 1e-9]
 

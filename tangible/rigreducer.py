@@ -132,7 +132,8 @@ _MAX_HEADER_DIGITS = 12
 
 
 def parse_dmat(data: bytes, name: str = "<dmat>") -> np.ndarray:
-    """A matrix from the bytes of a ``.dmat`` file (ASCII or binary, see the module docstring).
+    """(rows, cols) float64: the matrix in the bytes of a ``.dmat`` file (ASCII or binary, see the module
+    docstring), as its header gives its size.
 
     Raises
     ------
@@ -200,7 +201,7 @@ def _show(token: str, limit: int = 40) -> str:
 
 
 def format_dmat(matrix, *, binary: bool = False) -> bytes:
-    """The bytes of a ``.dmat`` file holding ``matrix`` (2-D, or 1-D as a column), as libigl's
+    """The bytes of a ``.dmat`` file holding ``matrix`` ((rows, cols), or (rows,) as a column), as libigl's
     ``writeDMAT`` writes it: ASCII with ``%.17g`` (exact for float64), or the binary variant."""
     W = np.asarray(matrix, dtype=np.float64)
     if W.ndim == 1:
@@ -215,12 +216,12 @@ def format_dmat(matrix, *, binary: bool = False) -> bytes:
 
 
 def read_dmat(path) -> np.ndarray:
-    """The matrix in a ``.dmat`` file (see :func:`parse_dmat`)."""
+    """(rows, cols) float64: the matrix in a ``.dmat`` file (see :func:`parse_dmat`)."""
     return parse_dmat(_read_bytes(path), str(path))
 
 
 def write_dmat(path, matrix, *, binary: bool = False) -> None:
-    """Write ``matrix`` to a ``.dmat`` file (see :func:`format_dmat`)."""
+    """Write ``matrix`` ((rows, cols), or (rows,) as a column) to a ``.dmat`` file (:func:`format_dmat`)."""
     _write_bytes(path, format_dmat(matrix, binary=binary))
 
 
@@ -823,12 +824,13 @@ class ReducerSetup:
 
     @property
     def joints(self) -> np.ndarray:
-        """Nodes whose edge carries a joint (non-zero ``localcos``)."""
+        """(j,) the nodes whose edge carries a joint (non-zero ``localcos``), in increasing order."""
         return np.flatnonzero(np.abs(self.localcos).max(axis=(1, 2)) > 0)
 
     def rest_readings(self) -> dict[int, np.ndarray]:
-        """Per jointed node, the joint's rest rotation as our joint reading (outlet frame in inlet frame,
-        our axes, quaternion): ``Fᵀ · restpose · F`` with ``F`` the link frame in our axes."""
+        """Per jointed node (:attr:`joints`), the joint's rest rotation as our joint reading, a (4,)
+        quaternion (outlet frame in inlet frame, our axes): ``Fᵀ · restpose · F`` with ``F`` the link frame
+        in our axes."""
         F = self.localcos @ THEIR_AXES.T  # their axes (x, y, z) → ours: our (x, y, z) = their (z, x, y)
         local = np.swapaxes(F, 1, 2) @ self.restpose @ F
         return {int(h): rot.from_matrix(local[h]) for h in self.joints}

@@ -15,14 +15,15 @@ IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
 
 def normalize(q) -> np.ndarray:
-    """(..., 4) unit quaternions with ``w >= 0`` (the canonical one of the pair ±q)."""
+    """(..., 4) unit quaternions with ``w >= 0`` (the canonical one of the pair ±q) of quaternions ``q``
+    (..., 4)."""
     q = np.asarray(q, dtype=np.float64)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     return np.where(q[..., :1] < 0.0, -q, q)
 
 
 def multiply(a, b) -> np.ndarray:
-    """(..., 4) Hamilton product ``a b``: the rotation b followed by a."""
+    """(..., 4) Hamilton product ``a b`` of quaternions (..., 4): the rotation b followed by a."""
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     aw, ax, ay, az = np.moveaxis(a, -1, 0)
@@ -39,7 +40,7 @@ def multiply(a, b) -> np.ndarray:
 
 
 def conjugate(q) -> np.ndarray:
-    """(..., 4) the inverse rotation of unit quaternions."""
+    """(..., 4) the inverse rotation of unit quaternions ``q`` (..., 4)."""
     q = np.asarray(q, dtype=np.float64)
     return q * np.array([1.0, -1.0, -1.0, -1.0])
 
@@ -76,7 +77,7 @@ def from_matrix(R) -> np.ndarray:
 
 
 def rotate(q, v) -> np.ndarray:
-    """(..., 3) vectors ``v`` rotated by quaternions ``q``."""
+    """(..., 3) vectors ``v`` (..., 3) rotated by unit quaternions ``q`` (..., 4)."""
     q = np.asarray(q, dtype=np.float64)
     v = np.asarray(v, dtype=np.float64)
     u = q[..., 1:]
@@ -85,16 +86,18 @@ def rotate(q, v) -> np.ndarray:
 
 
 def angle(a, b) -> np.ndarray:
-    """(...,) the angle in radians of the rotation taking ``b`` to ``a`` (0 to π), accurate near 0."""
+    """(...,) the angle in radians of the rotation taking ``b`` to ``a`` (unit, (..., 4)), 0 to π, accurate
+    near 0."""
     r = multiply(conjugate(b), a)
     return 2.0 * np.arctan2(np.linalg.norm(r[..., 1:], axis=-1), np.abs(r[..., 0]))
 
 
 def slerp(a, b, t) -> np.ndarray:
-    """(..., 4) spherical linear interpolation from ``a`` (t = 0) to ``b`` (t = 1) along the shorter arc.
+    """(..., 4) spherical linear interpolation from ``a`` (t = 0) to ``b`` (t = 1), unit (..., 4), along the
+    shorter arc.
 
     ``t`` broadcasts as (...,). Exact at both ends; falls back to normalized linear interpolation when the
-    two rotations are within 1e-6 rad of each other.
+    two quaternions are within 1e-6 rad of each other on the unit sphere (rotations within about 2e-6 rad).
     """
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)

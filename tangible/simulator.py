@@ -286,7 +286,8 @@ class Sent:
 
     @property
     def rotation(self) -> np.ndarray | None:
-        """The joint rotation :attr:`angles` stand for (:func:`tangible.joint.joint_rotation`)."""
+        """(4,) the joint rotation (unit quaternion) :attr:`angles` stand for
+        (:func:`tangible.joint.joint_rotation`); None without angles."""
         return None if self.angles is None else joint_rotation(np.array(self.angles))
 
 

@@ -191,7 +191,7 @@ class Skeleton:
 
     @cached_property
     def roots(self) -> np.ndarray:
-        """Bones without a parent."""
+        """(r,) the bones without a parent, in increasing order (read-only)."""
         return readonly(np.flatnonzero(self.parents < 0))
 
     @cached_property
@@ -215,7 +215,8 @@ class Skeleton:
 
     @cached_property
     def levels(self) -> tuple[np.ndarray, ...]:
-        """Bones grouped by depth (roots first)."""
+        """Bones grouped by depth: one read-only int array of each depth's bones, in increasing order,
+        roots first."""
         depth = np.zeros(self.n_bones, np.int64)
         for b, p in enumerate(self.parents):
             depth[b] = 0 if p < 0 else depth[p] + 1
@@ -248,7 +249,8 @@ class Skeleton:
     # ------------------------------------------------------------------ poses
 
     def check_poses(self, poses, what: str = "poses") -> np.ndarray:
-        """(..., b, 4) unit quaternions from pose input, or a RigError naming the problem."""
+        """(..., b, 4) unit quaternions (normalized) from pose input ``poses`` (..., b, 4), or a RigError
+        naming the problem."""
         Q = np.asarray(poses, dtype=np.float64)
         if Q.shape[-2:] != (self.n_bones, 4):
             raise RigError(f"{what} must have shape (..., {self.n_bones}, 4), got {Q.shape}")
@@ -259,7 +261,7 @@ class Skeleton:
         return Q / norm[..., None]
 
     def forward(self, poses) -> Posed:
-        """Forward kinematics of local rotations.
+        """Forward kinematics of local rotations: frames (..., b, 3, 3), heads and tails (..., b, 3).
 
         Parameters
         ----------
@@ -271,7 +273,8 @@ class Skeleton:
         return self.forward_matrices(local)
 
     def forward_matrices(self, local: np.ndarray) -> Posed:
-        """Forward kinematics of local rotation matrices ``local`` (..., b, 3, 3)."""
+        """Forward kinematics of local rotation matrices ``local`` (..., b, 3, 3): frames (..., b, 3, 3),
+        heads and tails (..., b, 3)."""
         R0, t0 = self.rest_offsets
         shape = local.shape[:-3]
         F = np.empty((*shape, self.n_bones, 3, 3))

@@ -296,6 +296,9 @@ class HandPairAnnotation:
     # ------------------------------------------------------------------ files
 
     def to_dict(self) -> dict:
+        """The annotation file's content (JSON-ready: each set of points as ``faces`` (k) and ``bary``
+        (k, 3) lists, a direction as ``[real, imaginary]``)."""
+
         def pts(p: SurfacePoints) -> dict:
             return {"faces": p.faces.tolist(), "bary": p.bary.tolist()}
 

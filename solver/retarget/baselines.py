@@ -491,7 +491,7 @@ class KeyvectorIK:
         self._mask = rig.dof_bone != 0
 
     def vectors(self, theta) -> np.ndarray:
-        """(m, 3) the target hand's keyvectors at pose θ."""
+        """(m, 3) the target hand's keyvectors at pose θ (d,)."""
         kin = self.hand.rig.kinematics(self.hand.rig.check_theta(theta), derivatives=False)
         p, _, _ = self._skin.sets[0].geometry(self._skin.vertices.positions(kin))
         return self.matrix @ p
@@ -529,9 +529,10 @@ class KeyvectorIK:
         return energy, terms, grad
 
     def solve(self, theta0, free, max_evaluations: int = MAX_EVALUATIONS, ftol_rel: float = FTOL_REL):
-        """Minimize over the free DOFs (within the rig's bounds) from θ0; the others keep θ0's values.
+        """Minimize over the DOFs ``free`` ((d,) bool, required; within the rig's bounds) from θ0 (d,),
+        clipped into the bounds; the others keep θ0's values.
 
-        Returns the best pose, its energy, terms, the evaluation count and NLopt's outcome.
+        Returns the best pose (d,), its energy, terms, the evaluation count and NLopt's outcome.
         """
         rig = self.hand.rig
         theta = np.clip(rig.check_theta(theta0, "theta0"), rig.lower, rig.upper)
@@ -703,8 +704,8 @@ def solve_tasks(
 
 
 def reseeded(task: FrameTask | KeyvectorTask, seed) -> FrameTask | KeyvectorTask:
-    """The task solved again from ``seed`` (a refinement's interpolated pose), except its fixed DOFs (the
-    baselines' given root), which keep the task's own values."""
+    """The task solved again from ``seed`` (d,) (a refinement's interpolated pose), except its fixed DOFs
+    (the baselines' given root), which keep the task's own values."""
     seed = np.asarray(seed, np.float64)
     free = np.ones(len(seed), bool) if task.free is None else np.asarray(task.free, bool)
     new_seed = np.where(free, seed, task.seed)
@@ -716,9 +717,9 @@ def reseeded(task: FrameTask | KeyvectorTask, seed) -> FrameTask | KeyvectorTask
 def resolver(
     tasks: Sequence[FrameTask | KeyvectorTask], map: Callable | None = None
 ) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
-    """The ``resolve(frames, seeds) -> θ`` callback of :func:`.refine.refine_trajectory` for a task list
-    (rows of the trajectory follow ``tasks``): the given frames are solved again from the given seeds
-    (:func:`reseeded`)."""
+    """The ``resolve(frames (k,), seeds (k, d)) -> θ (k, d)`` callback of :func:`.refine.refine_trajectory`
+    for a task list (rows of the trajectory follow ``tasks``): the given frames are solved again from the
+    given seeds (:func:`reseeded`)."""
     tasks = list(tasks)
 
     def resolve(frames: np.ndarray, seeds: np.ndarray) -> np.ndarray:

@@ -62,6 +62,7 @@ class FrameStore:
             write_atomically(stamp, identity)
 
     def path(self, frame: int) -> Path:
+        """Where frame ``frame``'s result is stored (``000012.npz``)."""
         return self.folder / f"{int(frame):06d}.npz"
 
     def done(self) -> set[int]:
@@ -69,11 +70,15 @@ class FrameStore:
         return {int(p.stem) for p in self.folder.glob("[0-9]*.npz")}
 
     def save(self, frame: int, result: Result) -> None:
+        """Store frame ``frame``'s result atomically, each value as an array of its own shape (a number as a
+        0-d array)."""
         arrays = {name: np.asarray(value) for name, value in result.items()}
         with atomic_file(self.path(frame)) as f:
             np.savez(f, **arrays)
 
     def load(self, frame: int) -> dict[str, np.ndarray]:
+        """Frame ``frame``'s stored result: each array by name, of the shape it was saved with (numbers as
+        0-d arrays); raises SolverError for a damaged file."""
         try:
             with np.load(self.path(frame), allow_pickle=False) as data:
                 return {name: data[name] for name in data.files}

@@ -424,7 +424,7 @@ def solve_frames(
 
 
 def object_contact_geometry(motion: Motion, contacts: Contacts) -> tuple[np.ndarray, np.ndarray]:
-    """(K, 3) world positions and outward unit normals of every frame's object contacts."""
+    """(K, 3) each: world positions and outward unit normals of every frame's object contacts (K in all)."""
     mesh = motion.object_mesh
     P = np.einsum("kj,kjd->kd", contacts.bary, mesh.vertices[mesh.faces[contacts.faces]])
     N = mesh.face_normals[contacts.faces]

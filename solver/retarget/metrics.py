@@ -111,7 +111,8 @@ def mean_distances(positions, targets, offsets) -> np.ndarray:
 def mesh_volume(vertices, faces) -> np.ndarray | float:
     """Signed volume of a closed, outward-oriented mesh: ``Σ det(a, b, c) / 6`` over its faces.
 
-    ``vertices`` may be (n, 3) (a float is returned) or (F, n, 3) (one volume per frame).
+    ``vertices`` may be (n, 3) (a float is returned) or (F, n, 3) (one volume per frame, (F,));
+    ``faces`` are (m, 3).
     """
     V = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -121,7 +122,8 @@ def mesh_volume(vertices, faces) -> np.ndarray | float:
 
 
 def vertex_clusters(faces, n_vertices: int, penetrating) -> np.ndarray:
-    """(n,) cluster label of each penetrating vertex (0, 1, ...), -1 for the others.
+    """(n,) cluster label of each vertex flagged in ``penetrating`` (n,) bool (0, 1, ...), -1 for the
+    others; ``faces`` (m, 3) are the mesh's, n = ``n_vertices``.
 
     Clusters are the connected components of the mesh-edge graph restricted to penetrating vertices
     (the paper's depth-first search on the hand mesh).
@@ -142,7 +144,8 @@ def vertex_clusters(faces, n_vertices: int, penetrating) -> np.ndarray:
 
 
 def cluster_volumes(vertices, labels) -> np.ndarray:
-    """(c,) convex-hull volume of each cluster (label 0..c-1) of points; 0 for degenerate clusters."""
+    """(c,) convex-hull volume of each cluster of points ``vertices`` (n, 3) by ``labels`` (n,) (0..c-1;
+    -1: none, as :func:`vertex_clusters` gives); 0 for degenerate clusters."""
     V = np.asarray(vertices, dtype=np.float64)
     lab = np.asarray(labels, dtype=np.int64).reshape(-1)
     n = int(lab.max()) + 1 if lab.size else 0

@@ -276,7 +276,7 @@ class Contacts:
         return np.repeat(np.arange(self.n_frames), self.count())
 
     def select(self, frames) -> Contacts:
-        """The contacts of the given frames (indices, a boolean mask or a slice), in that order."""
+        """The contacts of the given frames ((k,) indices, an (F,) boolean mask or a slice), in that order."""
         ids = _frame_ids(frames, self.n_frames)
         counts = self.count()[ids]
         rows = np.repeat(self.offsets[ids] - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
@@ -447,7 +447,8 @@ class Motion:
         )
 
     def select(self, frames) -> Motion:
-        """The motion restricted to the given frames (indices, a boolean mask or a slice), in that order."""
+        """The motion restricted to the given frames ((k,) indices, an (F,) boolean mask or a slice), in that
+        order."""
         ids = _frame_ids(frames, self.n_frames)
         if ids.size == 0:
             raise MotionError("select needs at least one frame", "frame")
@@ -469,7 +470,9 @@ class Motion:
     # ------------------------------------------------------------------ file
 
     def to_arrays(self) -> dict[str, np.ndarray]:
-        """The members of the motion file (see the module docstring), as arrays."""
+        """The members of the motion file by name, as arrays of the dtypes and shapes of the module
+        docstring's tables (``object_poses`` (F, 4, 4), ``hand_vertices`` (F, n, 3), strings and scalars
+        0-d); the motion's own read-only arrays, not copies."""
         out = {
             "format": np.array(FORMAT),
             "version": np.array(VERSION, np.int64),
@@ -516,7 +519,8 @@ class Motion:
 
     @classmethod
     def from_arrays(cls, arrays: dict, source: str = "motion data") -> Motion:
-        """Validate the members of a motion file (see the module docstring) and build the motion."""
+        """Validate the members of a motion file (name → array, of the dtypes and shapes of the module
+        docstring's tables) and build the motion."""
         unknown = sorted(set(arrays) - set(_REQUIRED) - set(_OPTIONAL))
         if unknown:
             raise MotionError(f"{source}: unexpected members {', '.join(unknown)}", unknown[0])
@@ -625,6 +629,11 @@ def read_npz(
         Whether any other member is an error (else it is skipped unread).
     error : type
         The :class:`MotionError` subclass to raise; its ``field`` names the member, or ``"file"``.
+
+    Returns
+    -------
+    dict of str to ndarray
+        Each member present, by name, with the shape and dtype it is stored with (not checked here).
     """
     try:
         archive = zipfile.ZipFile(path)

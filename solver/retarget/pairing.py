@@ -301,7 +301,8 @@ def pair_rays(origins, normals, caster: RayCaster, cutoff: float = DEFAULT_CUTOF
 
 
 def face_normals(vertices: np.ndarray, faces: np.ndarray, which: np.ndarray) -> np.ndarray:
-    """(k, 3) unit normals of the posed faces ``which`` (counter-clockwise corners face outward)."""
+    """(k, 3) unit normals of the faces ``which`` (k,) of ``faces`` (m, 3) posed at ``vertices`` (n, 3)
+    (counter-clockwise corners face outward)."""
     T = vertices[faces[which]]
     n = _cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
     return n / np.linalg.norm(n, axis=1, keepdims=True)
@@ -384,6 +385,7 @@ class MotionPairing:
     source: str
 
     def counts(self) -> dict[str, int]:
+        """How many source contacts (of all frames) ended with each status."""
         n = np.bincount(self.status.astype(np.int64), minlength=len(STATUS_NAMES))
         return {name: int(c) for name, c in zip(STATUS_NAMES, n, strict=True)}
 

@@ -168,7 +168,8 @@ class Refinement:
 
 
 def acceleration(theta, fps: float) -> np.ndarray:
-    """(F, d) second time derivative by central differences; frames 0 and F-1 repeat their neighbour's.
+    """(F, d) second time derivative of ``theta`` (F, d) by central differences; frames 0 and F-1 repeat
+    their neighbour's.
 
     Zero when F < 3.
     """
@@ -256,7 +257,7 @@ def hampel(values, half_width: int = HAMPEL_HALF_WIDTH, sigmas: float = HAMPEL_S
 
 
 def lowpass(values, fps: float, cutoff: float = CUTOFF, order: int = FILTER_ORDER) -> np.ndarray:
-    """Zero-phase Butterworth low-pass along time (axis 0) of every DOF.
+    """(F, d) zero-phase Butterworth low-pass of ``values`` (F, d) along time (axis 0), every DOF alike.
 
     ``order`` poles at ``cutoff`` Hz, run forwards and backwards (``scipy.signal.sosfiltfilt``, odd
     padding of four cutoff periods, shortened for short clips, so linear motion passes unchanged); a

@@ -64,7 +64,8 @@ def clamped_knots(start: float, end: float, n_control: int, degree: int = DEGREE
 
 
 def greville(knots: np.ndarray, degree: int = DEGREE) -> np.ndarray:
-    """(n,) Greville abscissae: where in time each control point sits (the mean of ``degree`` knots)."""
+    """(n,) Greville abscissae of ``knots`` (n + degree + 1,): where in time each of the n control points
+    sits (the mean of ``degree`` knots)."""
     n = len(knots) - degree - 1
     return np.lib.stride_tricks.sliding_window_view(knots[1:-1], degree)[:n].mean(1)
 
