@@ -25,7 +25,7 @@ from scipy import sparse
 from . import analytic, bbone, bones, constraints
 from .controls import Plan, handles
 from .errors import SolverError
-from .rig import into_limits
+from .rig import clipped
 from .rotations import EULER_ORDERS, euler_to_matrix, matrix_to_euler
 
 #: A location column of the root control shorter than this (times the hand's size) does not move it.
@@ -332,9 +332,9 @@ class ControlRig:
         return t
 
     def clip(self, theta) -> np.ndarray:
-        """θ (d,) within the limits: rotations a whole turn out are wrapped back (the same pose), the rest
-        clipped (:func:`solver.rig.into_limits`). One pose only, unlike :meth:`solver.Rig.clip`."""
-        return into_limits(self.check_theta(theta), self.is_rotation, self.lower, self.upper)
+        """θ (d,), or poses (F, d), within the limits: rotations a whole turn out are wrapped back (the
+        same pose), the rest clipped (:func:`solver.rig.clipped`, as :meth:`solver.Rig.clip`)."""
+        return clipped(self, theta)
 
     def kinematics(self, theta, derivatives: bool = True, dofs=None) -> ControlKinematics:
         """Skinning matrices at pose θ (d,) and, unless ``derivatives`` is False, their derivatives with

@@ -71,6 +71,18 @@ def into_limits(theta, is_rotation, lower, upper) -> np.ndarray:
     return np.clip(T, lo, hi)
 
 
+def clipped(rig, theta) -> np.ndarray:
+    """θ (d,), or poses (F, d), of ``rig`` (a :class:`Rig` or a :class:`~solver.ControlRig`: anything
+    with ``check_theta``, ``n_dofs``, ``is_rotation``, ``lower`` and ``upper``) within its limits
+    (:func:`into_limits`); raises SolverError for poses of another shape or not finite."""
+    T = np.asarray(theta, dtype=np.float64)
+    if T.ndim == 2:
+        if T.shape[1] != rig.n_dofs or not np.isfinite(T).all():
+            raise SolverError(f"poses must be finite with shape (F, {rig.n_dofs}), got {T.shape}")
+        return into_limits(T, rig.is_rotation, rig.lower, rig.upper)
+    return into_limits(rig.check_theta(T), rig.is_rotation, rig.lower, rig.upper)
+
+
 @dataclass(frozen=True)
 class Kinematics:
     """Forward kinematics of one pose of a :class:`Rig`, with what the analytic derivatives need.
@@ -421,13 +433,7 @@ class Rig:
     def clip(self, theta) -> np.ndarray:
         """θ (d,), or poses (F, d), within the limits: rotations a whole turn out are wrapped back (the
         same pose), the rest clipped (:func:`into_limits`)."""
-        T = np.asarray(theta, dtype=np.float64)
-        if T.ndim == 2:
-            if T.shape[1] != self.n_dofs or not np.isfinite(T).all():
-                raise SolverError(f"poses must be finite with shape (F, {self.n_dofs}), got {T.shape}")
-        else:
-            T = self.check_theta(T)
-        return into_limits(T, self.is_rotation, self.lower, self.upper)
+        return clipped(self, theta)
 
     def check_theta(self, theta, what: str = "theta") -> np.ndarray:
         """(d,) float64 copy of θ; raises SolverError unless it has one finite value per DOF."""

@@ -214,3 +214,18 @@ def test_a_mechanism_rig_follows_its_controls():
     # a.02 is a child of a.01: it swings with it.
     assert not np.allclose(S[column["DEF-a.02"]], np.eye(4)[:3], atol=1e-6)
     assert np.allclose(S[column["DEF-b.02"]], np.eye(4)[:3], atol=1e-12)
+
+
+def test_control_rig_clips_poses_as_solver_rig(human):
+    """A control rig stands in for a solver.Rig (the retarget clips its spline's (F, d) poses)."""
+    hand, _, skin = human
+    rig = skin.rig
+    rng = np.random.default_rng(2)
+    poses = rig.start + rng.normal(0, 2.0, (4, rig.n_dofs))
+    clipped = rig.clip(poses)
+    assert clipped.shape == poses.shape
+    np.testing.assert_array_equal(clipped, np.stack([rig.clip(p) for p in poses]))
+    # The fingers' DOFs are the hand's own (the root's are the root control's, with its own limits).
+    np.testing.assert_array_equal(clipped[:, 6:], hand.rig.clip(poses)[:, 6:])
+    with pytest.raises(SolverError, match=r"shape \(F, 54\)"):
+        rig.clip(poses[:, :-1])
