@@ -186,6 +186,15 @@ def _array(value, shape_tail, what: str) -> np.ndarray:
     return a
 
 
+def free_dofs(rig, free=None) -> np.ndarray:
+    """(k,) indices of the DOFs a solve may change: those flagged in ``free`` ((d,) bool; default all)
+    that the rig does not lock. Raises SolverError for a mask of another length."""
+    mask = np.ones(rig.n_dofs, bool) if free is None else np.array(free, dtype=bool).reshape(-1)
+    if mask.size != rig.n_dofs:
+        raise SolverError(f"free needs {rig.n_dofs} flags (one per DOF), got {mask.size}")
+    return np.flatnonzero(mask & ~rig.locked)
+
+
 class ContactIK:
     """The contact IK problem for one hand and one set of paired contacts.
 
@@ -425,11 +434,7 @@ class ContactIK:
         rig = self.hand.rig
         start = time.perf_counter()
         theta = rig.clip(rig.rest if theta0 is None else rig.check_theta(theta0, "theta0"))
-        mask = np.ones(rig.n_dofs, bool) if free is None else np.array(free, dtype=bool).reshape(-1)
-        if mask.size != rig.n_dofs:
-            raise SolverError(f"free needs {rig.n_dofs} flags (one per DOF), got {mask.size}")
-        mask &= ~rig.locked
-        index = np.flatnonzero(mask)
+        index = free_dofs(rig, free)
         start_energy, start_terms = self.energy(theta)
         final, energy, terms, count, status = minimize(
             self.energy, functools.partial(self.energy_and_gradient, dofs=index), theta, index,

@@ -99,6 +99,20 @@ def test_keyvector_gradient_matches_central_differences(same):
     np.testing.assert_allclose(g, fd, rtol=1e-5, atol=1e-6 * np.abs(g).max())
 
 
+def test_keyvector_solve_frees_every_dof_by_default_as_contact_ik(same):
+    """free=None means every unlocked DOF, as in ContactIK.solve (it used to free none and return θ0)."""
+    ann, tasks, truth = same
+    problem = bl.keyvector_problem(bl.keyvector_tasks(tasks[4:5], ann, truth[4:5], bl.KeyvectorParams())[0])
+    rig = problem.hand.rig
+    start = rig.clip(truth[4] + 0.1)
+    default = problem.solve(start, None, max_evaluations=20)
+    explicit = problem.solve(start, np.ones(rig.n_dofs, bool), max_evaluations=20)
+    np.testing.assert_array_equal(default[0], explicit[0])
+    assert np.abs(default[0] - start).max() > 1e-3
+    with pytest.raises(SolverError, match="free needs"):
+        problem.solve(start, np.ones(3, bool))
+
+
 # ------------------------------------------------------------------------------- same hand (closed form)
 
 

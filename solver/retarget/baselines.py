@@ -69,7 +69,7 @@ import numpy as np
 from geodesics import SurfacePoints
 
 from ..errors import SolverError
-from ..ik import ALGORITHMS, minimize
+from ..ik import ALGORITHMS, free_dofs, minimize
 from .frames import (
     ALGORITHM,
     FTOL_REL,
@@ -529,14 +529,14 @@ class KeyvectorIK:
         return energy, terms, grad
 
     def solve(self, theta0, free, max_evaluations: int = MAX_EVALUATIONS, ftol_rel: float = FTOL_REL):
-        """Minimize over the DOFs ``free`` ((d,) bool, required; within the rig's bounds) from θ0 (d,),
-        clipped into the bounds; the others keep θ0's values.
+        """Minimize over the DOFs ``free`` ((d,) bool, or None for all; within the rig's bounds) from θ0
+        (d,), brought into the bounds (:meth:`solver.Rig.clip`); the others keep θ0's values.
 
         Returns the best pose (d,), its energy, terms, the evaluation count and NLopt's outcome.
         """
         rig = self.hand.rig
-        theta = np.clip(rig.check_theta(theta0, "theta0"), rig.lower, rig.upper)
-        index = np.flatnonzero(np.asarray(free, bool) & ~rig.locked)
+        theta = rig.clip(rig.check_theta(theta0, "theta0"))
+        index = free_dofs(rig, free)
         scale = np.where(rig.is_rotation, 1.0, self.length)[index]
         return minimize(
             self.energy,
