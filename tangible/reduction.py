@@ -283,7 +283,13 @@ class SplitterProgram:
             )
             upper.append(0.0)
             rows.append(f"Eq. 5: node {node} under outlet {nd.parent_outlet} of node {nd.parent}")
-        return cls(cands, objective, np.array(A).reshape(-1, n), np.array(upper), tuple(rows))
+        return cls(
+            cands,
+            objective,
+            np.array(A, dtype=np.float64).reshape(len(rows), n),
+            np.array(upper),
+            tuple(rows),
+        )
 
     def solve(self) -> np.ndarray:
         """Optimal binary ``x`` (n,) from HiGHS."""

@@ -13,7 +13,7 @@ from tangible.assembly import instructions_svg, instructions_text
 from tangible.creatures import creature
 from tangible.errors import RigError
 from tangible.reachability import fit
-from tangible.reduction import MAX_GATE_ERROR, branch_nodes, splitter_candidates
+from tangible.reduction import MAX_GATE_ERROR, SplitterProgram, branch_nodes, splitter_candidates
 from tangible.skeleton import area_weights
 
 KIT = Kit(6, {"T": 1, "cross": 1})
@@ -208,3 +208,11 @@ def test_bad_input_is_named():
         reduce(sk, samples[:, :5], KIT)
     with pytest.raises(RigError, match="head == tail"):
         Skeleton.from_heads_tails(["a"], [-1], [[0, 0, 0]], [[0, 0, 0]])
+
+
+def test_a_program_without_candidates_places_nothing():
+    """Every branching node's candidates can fail the gate filter: the program is then empty, not an
+    error from reshaping nothing."""
+    program = SplitterProgram.build([], {}, {}, set())
+    assert program.A.shape == (0, 0) and program.solve().shape == (0,)
+    assert program.violations(np.zeros(0)) == []
