@@ -34,21 +34,18 @@ bound have NaN points and barycentric coordinates and face and feature -1.
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from .errors import MeshError
-from .mesh import TriMesh
+from .mesh import TriMesh, per_mesh
 
 #: Faces with the representatives nearest a query are tested first; most queries need no others.
 NEAREST_CANDIDATES = 32
 #: Faces larger than this quantile of the faces' circumradii are represented by several points.
 LARGE_FACE_QUANTILE = 0.9
-
-_SOLVERS: weakref.WeakKeyDictionary[TriMesh, ClosestPoints] = weakref.WeakKeyDictionary()
 
 
 @dataclass(frozen=True, eq=False)
@@ -192,10 +189,7 @@ class ClosestPoints:
     @classmethod
     def of(cls, mesh: TriMesh) -> ClosestPoints:
         """The solver of ``mesh``: built on first use, shared by every later call while the mesh lives."""
-        solver = _SOLVERS.get(mesh)
-        if solver is None:
-            solver = _SOLVERS[mesh] = cls(mesh)
-        return solver
+        return _solver_of(mesh)
 
     def box_gap(self, points) -> np.ndarray:
         """(k,) distance of points (k, 3) to the bounding box of the mesh's faces (0 inside it): a lower
@@ -331,3 +325,6 @@ class ClosestPoints:
         first = np.flatnonzero(d == np.repeat(lowest, np.diff(np.r_[start, d.size])))
         first = first[np.r_[True, point[first][1:] != point[first][:-1]]]
         return faces[first], d[first], c[first], b[first], f[first]
+
+
+_solver_of = per_mesh(ClosestPoints)
