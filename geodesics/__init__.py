@@ -7,6 +7,8 @@
   propagation), with exact distances and initial and final directions.
 * :func:`transport`, :func:`closest_points`, :func:`tangent_axes` and the basis conversions in
   :mod:`geodesics.tangent`.
+* :class:`ClosestPoints` — exact closest points of the surface to points in space, for batches of
+  queries (:mod:`geodesics.closest`).
 
 The contact model (Contact Edit §4, Algorithms 1-5) is built on them:
 
@@ -25,6 +27,7 @@ Tangent vectors are complex numbers in each point's tangent basis (see :mod:`geo
 
 from .atlas import AtlasCoordinates, ContactAtlas
 from .axis import Axis
+from .closest import Closest, ClosestPoints
 from .contacts import ContactSet, Link
 from .default_axes import farthest_pair_axis, medial_axis
 from .errors import ContactError, GeodesicError, MeshError, MeshWarning
@@ -40,6 +43,8 @@ from .trace import Trace, exp_map
 __all__ = [
     "AtlasCoordinates",
     "Axis",
+    "Closest",
+    "ClosestPoints",
     "ContactAtlas",
     "ContactError",
     "ContactPatch",

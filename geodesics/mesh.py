@@ -16,9 +16,13 @@ Conventions (written here because every other module relies on them):
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import warnings
+import weakref
+from collections.abc import Callable
 from functools import cached_property
+from typing import TypeVar
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -26,6 +30,8 @@ from scipy.sparse.csgraph import connected_components
 
 from .arrays import readonly
 from .errors import MeshError, MeshWarning, describe_ids
+
+_T = TypeVar("_T")
 
 #: A face whose height is below this fraction of its longest edge is degenerate.
 DEGENERATE_HEIGHT = 1e-12
@@ -426,3 +432,21 @@ class TriMesh:
     def face_axes(self, faces) -> np.ndarray:
         """(k, 2, 3) 3D x and y axes of the frames of the given ``faces`` (k,)."""
         return self._face_axes[np.asarray(faces, dtype=np.int64)]
+
+
+def per_mesh(build: Callable[[TriMesh], _T]) -> Callable[[TriMesh], _T]:
+    """``build(mesh)`` computed on first use and kept while the mesh lives (a :class:`TriMesh` is
+    immutable). Unlike ``functools.cache`` it keeps no mesh alive: in a Blender session, where every
+    operator call makes new meshes, a plain cache would hold them all. What ``build`` returns must not
+    refer to the mesh, or the mesh would never be freed."""
+    results: weakref.WeakKeyDictionary[TriMesh, _T] = weakref.WeakKeyDictionary()
+
+    @functools.wraps(build)
+    def cached(mesh: TriMesh) -> _T:
+        try:
+            return results[mesh]
+        except KeyError:
+            value = results[mesh] = build(mesh)
+            return value
+
+    return cached

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .closest import ClosestPoints
 from .errors import MeshError, describe_ids
 from .mesh import TriMesh
 
@@ -103,28 +104,13 @@ class SurfacePoints:
 
     @classmethod
     def nearest(cls, mesh: TriMesh, positions) -> SurfacePoints:
-        """The closest surface point to each 3D position (exact: every face that could hold a closer
-        point is examined)."""
-        from scipy.spatial import cKDTree
-
+        """The closest surface point to each 3D position (k, 3), exactly (see
+        :class:`geodesics.ClosestPoints`, whose solver for ``mesh`` is built once and reused)."""
         X = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         if not np.all(np.isfinite(X)):
             raise MeshError("positions contain NaN or infinite values")
-        centroid = mesh.face_centroids
-        reach = mesh.face_radii.max()  # no point of any face is farther from its centroid
-        tree = cKDTree(centroid)
-        _, guess = tree.query(X, k=min(8, mesh.n_faces))
-        guess = guess.reshape(len(X), -1)
-        bound = distances_to_faces(mesh, np.repeat(np.arange(len(X)), guess.shape[1]), guess.ravel(), X)
-        bound = bound.reshape(len(X), -1).min(1)
-        # Any face with a point within `bound` has its centroid within bound + reach.
-        candidates = tree.query_ball_point(X, bound + reach)
-        point = np.repeat(np.arange(len(X)), [len(c) for c in candidates])
-        face = np.concatenate([np.asarray(c, np.int64) for c in candidates]) if len(X) else np.empty(0, int)
-        dist = distances_to_faces(mesh, point, face, X)
-        order = np.lexsort((dist, point))
-        first = order[np.r_[True, point[order][1:] != point[order][:-1]]]
-        return cls.from_positions(mesh, face[first], X[point[first]])
+        found = ClosestPoints.of(mesh).query(X)
+        return cls(found.faces, found.bary)
 
     @staticmethod
     def concatenate(parts) -> SurfacePoints:

@@ -10,12 +10,11 @@ in the vertex's tangent basis. A ray that meets the boundary stops there.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cache
 
 import numpy as np
 
 from .errors import GeodesicError, MeshError
-from .mesh import TriMesh
+from .mesh import TriMesh, per_mesh
 from .points import SurfacePoints
 from .tangent import arrival_to_basis, face_to_vertex, to_face_frame, vertex_to_face
 
@@ -46,7 +45,7 @@ class Trace:
     lengths: np.ndarray
 
 
-@cache
+@per_mesh
 def _face_gradients(mesh: TriMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(3, m) each: x and y components of the barycentric gradients in the face frames, and the slope
     below which a ray counts as parallel to an edge (rounding noise, not an exit). Rows are corners."""

@@ -1,6 +1,9 @@
 """Exact geodesics on curved meshes, against Kirsanov's MMP implementation and Dijkstra, plus
 sampling-agnostic behaviour and the failure modes."""
 
+import gc
+import weakref
+
 import numpy as np
 import pytest
 
@@ -230,3 +233,14 @@ def _locate_on_sphere(mesh, dirs):
         faces.append(near[hit])
         bary.append([1 - u[hit] - v[hit], u[hit], v[hit]])
     return SurfacePoints(faces, bary)
+
+
+def test_tracing_keeps_no_mesh_alive():
+    """What exp_map precomputes per mesh is freed with the mesh: the add-on makes a mesh per operator
+    call, and a cache holding them would grow all session."""
+    mesh = icosphere(2)
+    exp_map(mesh, random_points(mesh, 3, np.random.default_rng(0)), np.full(3, 0.1 + 0.05j))
+    alive = weakref.ref(mesh)
+    del mesh
+    gc.collect()
+    assert alive() is None

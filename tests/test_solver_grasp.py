@@ -4,10 +4,11 @@ import numpy as np
 import pytest
 
 from geodesics import SurfacePoints, TriMesh
+from geodesics.closest import closest_on_triangles
 from solver import ContactIK, MeshSDF, SolverError, flex_to_contact, grasp, hands, objects
 from solver.benchmark import cylinder_grasp
 from solver.grasp import RELATIVE_TOLERANCE, in_palm
-from solver.sdf import HalfSpace, _closest_on_triangles
+from solver.sdf import HalfSpace
 
 
 def winding_numbers(mesh: TriMesh, X: np.ndarray) -> np.ndarray:
@@ -26,7 +27,7 @@ def winding_numbers(mesh: TriMesh, X: np.ndarray) -> np.ndarray:
 
 def brute_force_distance(mesh: TriMesh, X: np.ndarray) -> np.ndarray:
     n, m = len(X), mesh.n_faces
-    d, _, _ = _closest_on_triangles(np.repeat(X, m, axis=0), np.tile(mesh.vertices[mesh.faces], (n, 1, 1)))
+    d = closest_on_triangles(np.repeat(X, m, axis=0), np.tile(mesh.vertices[mesh.faces], (n, 1, 1)))[0]
     return d.reshape(n, m).min(1)
 
 

@@ -58,7 +58,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from geodesics import SurfacePoints, TriMesh
 
@@ -68,7 +67,7 @@ from ..grasp import grasp
 from ..hands import Hand, make_hand
 from ..rig import Rig
 from ..rotations import axis_angle_to_matrix, matrix_to_axis_angle, matrix_to_euler
-from ..sdf import Box, MeshSDF, _closest_on_triangles, face_samples
+from ..sdf import Box, MeshSDF
 from .motion import Contacts, Motion
 
 __all__ = [
@@ -113,8 +112,6 @@ PENETRATION_TOLERANCE = 0.0005
 GRIP_REACH = 0.75
 #: Hand points are checked for penetration within this distance of the object's surface (scale 1).
 PENETRATION_BAND = 0.005
-#: Nearest face centroids examined per point by the band distance (more go to MeshSDF).
-BAND_CANDIDATES = 48
 #: Height of the lift (metres at scale 1).
 LIFT = 0.16
 #: Suffix of the source_kind of a mirrored (left) hand.
@@ -192,7 +189,8 @@ def _apply(T: np.ndarray, X: np.ndarray) -> np.ndarray:
 
 
 def minimum_jerk(u) -> np.ndarray:
-    """Flash and Hogan's minimum-jerk profile ``10u³ - 15u⁴ + 6u⁵`` on [0, 1] (C², at rest at both ends)."""
+    """(...) Flash and Hogan's minimum-jerk profile ``10u³ - 15u⁴ + 6u⁵`` of u (...) clipped to [0, 1]
+    (C², at rest at both ends)."""
     u = np.clip(np.asarray(u, dtype=np.float64), 0.0, 1.0)
     return u**3 * (10.0 + u * (-15.0 + 6.0 * u))
 
@@ -572,66 +570,13 @@ def _surface_samples(mesh: TriMesh, density: float, scale: float, seed: int) -> 
     return SurfacePoints(faces, rng.dirichlet([1.0, 1.0, 1.0], count))
 
 
-class _BandSDF:
-    """Exact signed distances to a closed mesh for the points within a band around its surface.
-
-    Every surface point is within ``reach`` of its face's centroid, so the faces that can hold the
-    closest point of a query within ``band`` of the surface have their centroids within
-    ``band + reach`` of it: the :data:`BAND_CANDIDATES` nearest centroids (a point with more falls
-    back to :class:`solver.MeshSDF`). Signs come from the closest feature's angle-weighted
-    pseudonormal, as in :class:`solver.MeshSDF`. Fully vectorized: no per-point Python work.
-    """
-
-    def __init__(self, mesh: TriMesh, sdf: MeshSDF | None = None):
-        self.mesh = mesh
-        self.sdf = sdf or MeshSDF(mesh)
-        self.corners = mesh.vertices[mesh.faces]
-        self.lo, self.hi = mesh.vertices.min(0), mesh.vertices.max(0)
-        samples, self.owner, self.reach = face_samples(self.corners)  # as MeshSDF's search
-        self.tree = cKDTree(samples)
-        n = mesh.face_normals
-        self.edge_normals = (n[np.arange(3 * mesh.n_faces) // 3] + n[mesh.twin // 3]).reshape(-1, 3, 3)
-
-    def query(self, Y: np.ndarray, band: float):
-        """The points of Y (k, 3) within ``band`` of the surface: their indices (j,), signed distances
-        (j,), closest points (j, 3) and faces (j,)."""
-        reach = band + self.reach
-        inside_box = np.all((self.lo - reach <= Y) & (self.hi + reach >= Y), axis=1)
-        candidates = np.flatnonzero(inside_box)
-        first_distance, _ = self.tree.query(Y[candidates], distance_upper_bound=reach)
-        candidates = candidates[np.isfinite(first_distance)]
-        k = min(BAND_CANDIDATES, len(self.owner))
-        dist, nearest = self.tree.query(Y[candidates], k=k, distance_upper_bound=reach)
-        dist, nearest = dist.reshape(len(candidates), k), nearest.reshape(len(candidates), k)
-        # The nearest sample lies on its face, so the closest face is at most dist[:, 0] away and one of
-        # its samples within dist[:, 0] + reach: farther samples need no triangle test.
-        hit = dist <= dist[:, :1] + self.reach
-        overflow = hit[:, -1] if k < len(self.owner) else np.zeros(len(candidates), bool)
-        row, slot = np.nonzero(hit & ~overflow[:, None])
-        point = candidates[row]
-        face = self.owner[nearest[row, slot]]
-        d, closest, feature = _closest_on_triangles(Y[point], self.corners[face])
-        order = np.lexsort((d, point))
-        first = order[np.r_[True, point[order][1:] != point[order][:-1]]] if order.size else order
-        point, d, closest, feature, face = point[first], d[first], closest[first], feature[first], face[first]
-        normal = self.mesh.face_normals[face].copy()
-        on_vertex = feature < 3
-        normal[on_vertex] = self.mesh.vertex_normals[self.mesh.faces[face[on_vertex], feature[on_vertex]]]
-        on_edge = (feature >= 3) & (feature < 6)
-        normal[on_edge] = self.edge_normals[face[on_edge], feature[on_edge] - 3]
-        signed = np.where(np.einsum("kj,kj->k", Y[point] - closest, normal) < 0, -d, d)
-        extra = candidates[overflow]
-        if extra.size:
-            d2, c2, f2 = self.sdf.query(Y[extra])
-            point = np.concatenate([point, extra])
-            signed, closest, face = (
-                np.concatenate([signed, d2]),
-                np.concatenate([closest, c2]),
-                np.concatenate([face, f2]),
-            )
-        keep = np.abs(signed) <= band
-        order = np.argsort(point[keep], kind="stable")
-        return point[keep][order], signed[keep][order], closest[keep][order], face[keep][order]
+def _near(sdf: MeshSDF, Y: np.ndarray, band: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The points of Y (k, 3) within ``band`` of the surface (inside or outside): their indices (j,),
+    signed distances (j,), closest points (j, 3) and faces (j,). Farther points cost a box test or one
+    nearest-neighbour search (:meth:`solver.MeshSDF.query` with ``max_distance`` and ``band``)."""
+    signed, closest, face = sdf.query(Y, band, band)
+    near = np.flatnonzero(np.abs(signed) <= band)
+    return near, signed[near], closest[near], face[near]
 
 
 def _contacts(
@@ -648,7 +593,6 @@ def _contacts(
     """Paired (object, hand) contacts of every frame, and per frame the deepest penetration of the hand
     (its samples and vertices within ``band`` of the object's surface) into the object."""
     corners = hand_mesh.faces[samples.faces]
-    band_sdf = _BandSDF(obj, sdf)
     k = len(samples)
     hand_parts, object_faces, object_points, counts = [], [], [], []
     depth = np.zeros(len(poses))
@@ -657,7 +601,7 @@ def _contacts(
         V = hand_vertices[f]
         P = np.concatenate([np.einsum("kc,kcd->kd", samples.bary, V[corners]), V])
         Y = (P - poses[f, :3, 3]) @ poses[f, :3, :3]
-        near, d, closest, face = band_sdf.query(Y, max(band, tolerance))
+        near, d, closest, face = _near(sdf, Y, max(band, tolerance))
         depth[f] = max(0.0, -float(d.min())) if d.size else 0.0
         keep = (np.abs(d) <= tolerance) & (near < k)
         rows = near[keep]
@@ -685,11 +629,11 @@ def penetration(motion: Motion, band: float | None = None) -> dict[str, np.ndarr
     * ``"object_table"`` — the deepest object vertex inside the table.
     """
     band = PENETRATION_BAND * motion.source_scale if band is None else float(band)
-    band_sdf = _BandSDF(motion.object_mesh)
+    sdf = MeshSDF(motion.object_mesh)
     depth = np.zeros(motion.n_frames)
     for f, O in enumerate(motion.object_poses):
         Y = (motion.hand_vertices[f] - O[:3, 3]) @ O[:3, :3]
-        _, d, _, _ = band_sdf.query(Y, band)
+        _, d, _, _ = _near(sdf, Y, band)
         depth[f] = max(0.0, -float(d.min())) if d.size else 0.0
     return {"hand_object": depth, **_table_depths(motion)}
 
