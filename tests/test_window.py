@@ -174,6 +174,25 @@ def test_a_stroke_paints_an_area_shift_adds_and_ctrl_takes_away(brush):
     assert [len(brush.results[k]) for k in ("painted", "added", "subtracted")] == [1, 1, 1]
 
 
+def test_painting_returns_to_blender_while_the_patch_is_made_and_esc_stops_it(brush):
+    """The stroke's patch (its default axis, made to take 2 s here, and the parameterization) is made off
+    the main thread: Blender's event loop keeps running (its timers, every 20 ms, are never held back
+    long), the patch arrives later as one operator call, and Esc while it is made leaves nothing."""
+    results = brush.results
+    assert results["stopped"]["patches"] == []
+    assert "Stopped making a patch of" in results["stopped"]["reports"][0]
+    assert results["while_working"] == 0  # the stroke has ended and the patch is still being made
+    wait = results["wait"]
+    assert wait["seconds"] > 0.5  # it came later: the slowed axis takes 2 s from the release
+    assert wait["longest_gap"] < 0.5  # a main thread blocked by the work would hold the timers 2 s
+    assert results["last_operator"] == "CONTACT_EDIT_OT_paint"
+    assert [len(results["painted"])] == [1]
+    # A Shift stroke whose patch was changed (its axis reset) while the addition was worked out.
+    stale = results["stale"]
+    assert stale["patches"] == stale["painted"]  # the axis changed, the points did not
+    assert "changed while adding" in stale["reports"][0] and "nothing was stored" in stale["reports"][0]
+
+
 def test_the_patch_list_shows_a_new_patch_at_once(brush):
     """Blender redraws a panel when a property it shows is set, not when a script rebuilds a list: the
     new patch's colour swatch must be in the sidebar right after the stroke, with no mouse over it."""

@@ -8,10 +8,11 @@ import bpy
 from geodesics import Axis, farthest_pair_axis, medial_axis
 
 from .. import store
+from .background import Background, Plan
 from .common import HotkeyTool, guarded, mesh_object, nearest_point, need_patch, ray_hit
 
 
-class CONTACT_EDIT_OT_axis(HotkeyTool, bpy.types.Operator):
+class CONTACT_EDIT_OT_axis(Background, HotkeyTool, bpy.types.Operator):
     """Set the axis of a contact patch (pick start and end on the surface, or use a default)"""
 
     bl_idname = "contact_edit.axis"
@@ -36,15 +37,20 @@ class CONTACT_EDIT_OT_axis(HotkeyTool, bpy.types.Operator):
 
     @guarded
     def invoke(self, context, event):
-        if self.method != "POINTS" or context.area is None or context.area.type != "VIEW_3D":
+        if context.area is None or context.area.type != "VIEW_3D":
             return self.execute(context)
+        if self.method != "POINTS":
+            return self.in_background(context, self._plan(context))
         self._obj = mesh_object(context, self.object_name or None)
         self._picked = 0
         context.window_manager.modal_handler_add(self)
         context.area.header_text_set("Axis: click its start, then its end · Esc cancels")
         return {"RUNNING_MODAL"}
 
+    @guarded
     def modal(self, context, event):
+        if self.waiting():
+            return self.modal_background(context, event)
         if event.type in {"ESC", "RIGHTMOUSE"}:
             context.area.header_text_set(None)
             return {"CANCELLED"}
@@ -58,26 +64,36 @@ class CONTACT_EDIT_OT_axis(HotkeyTool, bpy.types.Operator):
                 self._picked += 1
             if self._picked == 2:
                 context.area.header_text_set(None)
-                return self.execute(context)
+                return self.in_background(context, self._plan(context), add_handler=False)
         return {"RUNNING_MODAL"}
 
     @guarded
     def execute(self, context):
+        return self.now(context, self._plan(context))
+
+    def _plan(self, context) -> Plan:
+        """The new axis and the patch parameterized around it (slow: :mod:`.background`), then stored."""
         obj = mesh_object(context, self.object_name or None)
         contacts = store.load(obj)
         name = self.patch or store.active_patch_name(obj)
         patch, mesh = contacts[name], contacts.mesh
         if self.method == "POINTS":
-            axis = Axis.between(
-                mesh, nearest_point(obj, mesh, self.start), nearest_point(obj, mesh, self.end)
-            )
-        elif self.method == "MEDIAL":
-            axis = medial_axis(mesh, patch.points)
+            ends = nearest_point(obj, mesh, self.start), nearest_point(obj, mesh, self.end)
+
+            def make_axis():
+                return Axis.between(mesh, *ends)
         else:
-            axis = farthest_pair_axis(mesh, patch.points)
-        store.save(obj, contacts.replace(name, patch.with_axis(axis)))
-        self.report({"INFO"}, f"'{name}' now has an axis of {len(axis)} points")
-        return {"FINISHED"}
+            method = medial_axis if self.method == "MEDIAL" else farthest_pair_axis
+
+            def make_axis():
+                return method(mesh, patch.points)
+
+        def commit(context, changed):
+            store.save(obj, contacts.replace(name, changed))
+            self.report({"INFO"}, f"'{name}' now has an axis of {len(changed.axis)} points")
+            return {"FINISHED"}
+
+        return Plan(f"Laying out the axis of '{name}'", lambda: patch.with_axis(make_axis()), commit, (obj,))
 
 
 classes = (CONTACT_EDIT_OT_axis,)

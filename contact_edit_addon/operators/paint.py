@@ -22,6 +22,7 @@ from geodesics import ContactError, ContactPatch, SurfacePoints, farthest_pair_a
 from geodesics.brush import Dab, erase, paint
 
 from .. import bridge, overlays, store
+from .background import Background, Plan
 from .common import NAVIGATION, HotkeyTool, guarded, mesh_object, need_mesh, unique_name
 
 #: Brush dabs per radius of stroke length.
@@ -67,7 +68,7 @@ def local_density(context, obj) -> float:
     return context.scene.contact_edit.brush_density * CM2_PER_M2 * (metres * bridge.uniform_scale(obj)) ** 2
 
 
-class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
+class CONTACT_EDIT_OT_paint(Background, HotkeyTool, bpy.types.Operator):
     """Create a contact patch from the selected vertices, or paint one with the area brush (Shift adds to
     the active patch, Ctrl takes away from it, F resizes the brush)"""
 
@@ -104,9 +105,11 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
 
     @guarded
     def invoke(self, context, event):
-        if self.source == "SELECTION" or context.area is None or context.area.type != "VIEW_3D":
+        if context.area is None or context.area.type != "VIEW_3D":
             return self.execute(context)
         self._object = mesh_object(context, self.object_name or None)
+        if self.source == "SELECTION":
+            return self.in_background(context, self._plan(context))
         self.stroke.clear()
         self._painting = False
         self._last = None
@@ -120,7 +123,14 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
         )
         return {"RUNNING_MODAL"}
 
+    @guarded
     def modal(self, context, event):
+        if self.waiting():
+            try:
+                return self.modal_background(context, event)
+            finally:
+                if not self.waiting():
+                    overlays.preview(self._object)
         if event.type in {"ESC", "RIGHTMOUSE"} and event.value == "PRESS":
             return self._end(context, {"CANCELLED"})
         if not self._painting:
@@ -141,8 +151,12 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
         elif event.type in {"MOUSEMOVE", "INBETWEEN_MOUSEMOVE"} and self._painting:
             self._dab(context, event)
         elif event.type == "LEFTMOUSE" and event.value == "RELEASE" and self._painting:
-            self._end(context, set())
-            return self.execute(context)
+            self._end(context, set(), keep_preview=True)  # what was painted stays shown until it is stored
+            try:
+                return self.in_background(context, self._plan(context), add_handler=False)
+            finally:
+                if not self.waiting():
+                    overlays.preview(self._object)
         self._show_brush(context, event)
         return {"RUNNING_MODAL"}
 
@@ -222,9 +236,10 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
             overlays.preview(obj, loose=[(self._painted, color)])
         context.area.tag_redraw()
 
-    def _end(self, context, status: set) -> set:
+    def _end(self, context, status: set, keep_preview: bool = False) -> set:
         overlays.brush(None)
-        overlays.preview(self._object)
+        if not keep_preview:
+            overlays.preview(self._object)
         context.window.cursor_modal_restore()
         context.area.header_text_set(None)
         context.area.tag_redraw()
@@ -254,6 +269,11 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
 
     @guarded
     def execute(self, context):
+        return self.now(context, self._plan(context))
+
+    def _plan(self, context) -> Plan | set:
+        """What the stroke or selection makes (:class:`~.background.Plan`); a subtraction is quick and
+        done at once."""
         obj = mesh_object(context, self.object_name or None)
         if obj.mode == "EDIT":
             obj.update_from_editmode()
@@ -286,24 +306,45 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
     def _new(self, context, obj, mesh, points):
         settings = context.scene.contact_edit
         method = settings.axis_method if self.axis_method == "SCENE" else self.axis_method
-        axis = (medial_axis if method == "MEDIAL" else farthest_pair_axis)(mesh, points)
-        contacts = store.load(obj, settings.deformed and obj == settings.hand)
-        name = unique_name(contacts, self.name or "contact")
-        store.save(obj, contacts.add(name, ContactPatch(mesh, points, axis)))
-        obj.contact_edit.active = len(obj.contact_edit.patches) - 1
-        self.report(
-            {"INFO"}, f"Painted '{name}' on '{obj.name}': {len(points)} points, axis of {len(axis)} points"
-        )
-        return {"FINISHED"}
+        make_axis = medial_axis if method == "MEDIAL" else farthest_pair_axis
+        deformed, base, where = settings.deformed and obj == settings.hand, self.name or "contact", obj.name
+
+        def commit(context, patch):
+            obj = mesh_object(context, where)
+            contacts = store.load(obj, deformed)
+            name = unique_name(contacts, base)
+            store.save(obj, contacts.add(name, patch))
+            obj.contact_edit.active = len(obj.contact_edit.patches) - 1
+            self.report(
+                {"INFO"},
+                f"Painted '{name}' on '{obj.name}': {len(patch)} points, axis of {len(patch.axis)} points",
+            )
+            return {"FINISHED"}
+
+        label = f"Making a patch of {len(points)} points on '{where}'"
+        return Plan(label, lambda: ContactPatch(mesh, points, make_axis(mesh, points)), commit)
 
     def _add(self, context, obj, active, points):
         contacts, name = active
         patch = contacts[name]
-        grown = ContactPatch(contacts.mesh, SurfacePoints.concatenate([patch.points, points]), patch.axis)
-        carried = self._carry(context, obj, contacts, name, lambda other: grown.mirrored_onto(other.axis))
-        store.save(obj, contacts.replace(name, grown))
-        self.report({"INFO"}, f"Added {len(points)} points to '{name}' (now {len(grown)}){carried}")
-        return {"FINISHED"}
+        counterpart = self._counterpart(context, obj, contacts, name)
+
+        def work():
+            grown = ContactPatch(contacts.mesh, SurfacePoints.concatenate([patch.points, points]), patch.axis)
+            if counterpart is None:
+                return grown, None
+            _, others, paired = counterpart
+            return grown, grown.mirrored_onto(others[paired].axis)
+
+        def commit(context, result):
+            grown, follows = result
+            carried = self._carry(counterpart, lambda _: follows)
+            store.save(obj, contacts.replace(name, grown))
+            self.report({"INFO"}, f"Added {len(points)} points to '{name}' (now {len(grown)}){carried}")
+            return {"FINISHED"}
+
+        watched = (obj,) if counterpart is None else (obj, counterpart[0])
+        return Plan(f"Adding {len(points)} points to '{name}'", work, commit, watched)
 
     def _subtract(self, context, obj, active, shape, dabs):
         contacts, name = active
@@ -315,7 +356,8 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
             return {"CANCELLED"}
         if removed == len(patch):
             raise ContactError(f"that would take every point of '{name}'; remove the patch instead")
-        carried = self._carry(context, obj, contacts, name, lambda other: other.subset(keep))
+        counterpart = self._counterpart(context, obj, contacts, name)
+        carried = self._carry(counterpart, lambda other: other.subset(keep))
         store.save(obj, contacts.replace(name, patch.subset(keep)))
         self.report({"INFO"}, f"Took {removed} points from '{name}' (now {int(keep.sum())}){carried}")
         return {"FINISHED"}
@@ -334,19 +376,27 @@ class CONTACT_EDIT_OT_paint(HotkeyTool, bpy.types.Operator):
         return contacts, name
 
     @staticmethod
-    def _carry(context, obj, contacts, name, change) -> str:
-        """Carry a change of the hand patch ``name`` over to its transfer on the object (which keeps its
-        place); returns what to add to the report."""
+    def _counterpart(context, obj, contacts, name):
+        """``(target object, its contacts, the name of its patch)`` paired with the hand patch ``name``, or
+        None when it has none."""
         settings = context.scene.contact_edit
         counterpart = contacts.pairs.get(name)
         target = settings.target
         if obj != settings.hand or counterpart is None or target is None:
-            return ""
+            return None
         others = store.load(target)
-        if counterpart not in others:
+        return (target, others, counterpart) if counterpart in others else None
+
+    @staticmethod
+    def _carry(counterpart, change) -> str:
+        """Carry a change of a hand patch over to its ``counterpart`` (:meth:`_counterpart`) on the
+        object, which keeps its place: ``change(old patch)`` is the new one. Returns what to add to the
+        report."""
+        if counterpart is None:
             return ""
-        store.save(target, others.replace(counterpart, change(others[counterpart])))
-        return f"; its transfer '{counterpart}' on '{target.name}' follows"
+        target, others, name = counterpart
+        store.save(target, others.replace(name, change(others[name])))
+        return f"; its transfer '{name}' on '{target.name}' follows"
 
 
 classes = (CONTACT_EDIT_PG_stroke_point, CONTACT_EDIT_OT_paint)

@@ -1,9 +1,12 @@
 """The area brush and the overlay in a real window: the circle and F to resize it, a stroke, Shift to add
 and Ctrl to take away; then where the patch is drawn (Object Mode, posed, and on the edit cage)."""
 
+import time
+
 import bpy
 import numpy as np
 from common import (
+    addon,
     bridge,
     example,
     finger_stroke,
@@ -12,6 +15,44 @@ from common import (
     shown_vertices,
 )
 from mathutils import Euler, Vector
+
+#: Seconds the default axis is made to take, holding the GIL as the geodesics do, so that the stroke's
+#: work certainly outlasts the checks made while it runs (on any machine).
+SLOW_AXIS = 2.0
+
+
+def slowed(function):
+    """``function`` taking :data:`SLOW_AXIS` seconds longer."""
+
+    def slow(*args):
+        end = time.monotonic() + SLOW_AXIS
+        while time.monotonic() < end:
+            sum(range(1000))
+        return function(*args)
+
+    return slow
+
+
+def patches(hand):
+    return [(e.name, e.points) for e in hand.contact_edit.patches]
+
+
+def until(done, timeout: float = 60.0):
+    """Wait (at most ``timeout`` seconds) until ``done()``, recording the event loop's heartbeat
+    meanwhile: timer callbacks every 20 ms, which a blocked main thread would hold back."""
+    beats = [time.monotonic()]
+
+    def beat():
+        beats.append(time.monotonic())
+        return 0.02
+
+    bpy.app.timers.register(beat)
+    began = time.monotonic()
+    while not done() and time.monotonic() - began < timeout:
+        yield 0.05
+    bpy.app.timers.unregister(beat)
+    longest = float(np.diff(beats).max(initial=0.0))
+    return {"seconds": time.monotonic() - began, "beats": len(beats), "longest_gap": longest}
 
 
 def project_patch(s, view, hand, name, vertices):
@@ -52,18 +93,49 @@ def steps(s):
     yield 0.4
     s.record("radius_after", settings.brush_radius)
     settings.brush_radius = 25
+
+    # The stroke's patch is made off the main thread: Blender keeps drawing and taking input meanwhile,
+    # the header says what is being made, and Esc stops it with nothing changed.
+    ops = addon("operators.paint")
+    originals = ops.farthest_pair_axis, ops.medial_axis
+    ops.farthest_pair_axis, ops.medial_axis = (slowed(f) for f in originals)
     yield from s.drag(path)
-    s.record("painted", [(e.name, e.points) for e in hand.contact_edit.patches])
+    yield from s.shot("working", settle=0.3)
+    yield from s.key("Escape", settle=0.3)
+    yield from until(lambda: patches(hand), timeout=SLOW_AXIS + 1.0)  # nothing comes: it was stopped
+    s.record("stopped", {"patches": patches(hand), "reports": s.reports()[-1:]})
+    yield from s.move(*path[0])
+    yield from s.key("ctrl+shift+p")
+    yield from s.drag(path)
+    s.record("while_working", len(hand.contact_edit.patches))
+    s.record("wait", (yield from until(lambda: patches(hand))))
+    s.record("last_operator", bpy.context.window_manager.operators[-1].bl_idname)
+    ops.farthest_pair_axis, ops.medial_axis = originals
+    s.record("painted", patches(hand))
     yield from s.shot("stroke")
 
     yield from s.shot("sidebar_after_stroke")  # the mouse is still on the hand: nothing hovered the list
 
-    # Shift adds beside it, Ctrl takes a band away across it.
+    # Shift adds beside it; if the patch changes while that is worked out, nothing is stored.
     side = [(x + 30, y + 30) for x, y in path]
+    painted = patches(hand)
+    original = ops.ContactPatch
+    ops.ContactPatch = slowed(original)
     yield from s.move(*side[0])
     yield from s.key("ctrl+shift+p")
     yield from s.drag(side, modifiers=("shift",))
-    s.record("added", [(e.name, e.points) for e in hand.contact_edit.patches])
+    points, _ = patch_points(hand, painted[0][0], shown_vertices(hand))
+    with view.override():  # another axis, from one of its points to another
+        bpy.ops.contact_edit.axis(method="POINTS", object_name=hand.name, start=points[0], end=points[-1])
+    yield from until(lambda: False, timeout=SLOW_AXIS + 2.0)  # the addition's work ends meanwhile
+    s.record("stale", {"patches": patches(hand), "painted": painted, "reports": s.reports()[-1:]})
+    ops.ContactPatch = original
+    yield from s.move(*side[0])
+    yield from s.key("ctrl+shift+p")
+    yield from s.drag(side, modifiers=("shift",))
+    yield from until(lambda: patches(hand) != painted)
+    s.record("added", patches(hand))
+    # Ctrl takes a band away across it.
     middle = path[len(path) // 2]
     across = [(middle[0] - 40 + 4 * i, middle[1] + 40 - 4 * i) for i in range(21)]
     yield from s.move(*across[0])
