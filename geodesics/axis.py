@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import ContactError, describe_ids
-from .exact import GeodesicField
+from .exact import GeodesicField, Path
 from .maps import geodesic_path, transport
 from .mesh import TriMesh
 from .points import SurfacePoints
@@ -106,7 +106,12 @@ class Axis:
     def between(cls, mesh: TriMesh, a: SurfacePoints, b: SurfacePoints) -> Axis:
         """The shortest geodesic from a to b, with every edge crossing (and every vertex it bends around)
         as an axis point, as the paper's axis tool does."""
-        path = geodesic_path(mesh, a, b)
+        return cls.along(mesh, geodesic_path(mesh, a, b))
+
+    @classmethod
+    def along(cls, mesh: TriMesh, path: Path) -> Axis:
+        """The axis along a geodesic ``path`` (from :func:`geodesic_path` or :meth:`GeodesicField.path`),
+        with every edge crossing and every vertex it bends around as an axis point."""
         tol = 1e-12 * mesh.mean_edge_length
         keep = [0]  # drop crossings that coincide (a path through a vertex crosses it twice)
         for i in range(1, len(path.points)):

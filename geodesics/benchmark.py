@@ -186,6 +186,8 @@ def run_contacts(repeat: int = 5, progress: Callable[[str], None] | None = None)
     axis = farthest_pair_axis(mesh, points)
     ours = _median_time(lambda: ContactPatch(mesh, points, axis), repeat)
     rows.append(Row(f"parameterize a {len(points)}-point patch ({len(axis)} axis points, exact)", ours))
+    ready = _median_time(lambda: ContactPatch(mesh, points, farthest_pair_axis(mesh, points)), repeat)
+    rows.append(Row("paint -> patch ready (default axis + parameterization)", ready))
     patch = ContactPatch(mesh, points, axis)
 
     say("edits")

@@ -14,6 +14,7 @@ from geodesics import (
     log_map,
     medial_axis,
 )
+from geodesics.default_axes import _graph_sweeps
 from geodesics.primitives import cylinder, grid_plane
 
 
@@ -208,6 +209,19 @@ def test_farthest_pair_axis_joins_the_diameter(plane):
         assert axis.length == pytest.approx(diameter, rel=tolerance)  # near-diametral on a disk
         ends = axis.points[[0, len(axis) - 1]].positions(plane)
         assert np.min(np.linalg.norm(P[:, None] - ends[None], axis=2), axis=0).max() < 1e-12
+
+
+def test_the_farthest_pair_estimate_bounds_the_geodesic_distance(plane):
+    """The edge-graph sweep the farthest-pair search runs on is never shorter than the geodesic (here the
+    straight line: the plane is flat), and not far over it."""
+    rng = np.random.default_rng(6)
+    points = SurfacePoints(rng.integers(0, plane.n_faces, 300), rng.dirichlet([1.0, 1.0, 1.0], 300))
+    estimate = _graph_sweeps(plane, points)([0, 5])
+    P = points.positions(plane)
+    straight = np.linalg.norm(P[[0, 5]][:, None] - P[None], axis=2)
+    assert np.all(estimate >= straight - 1e-12)
+    ratio = estimate[straight > 0.1] / straight[straight > 0.1]
+    assert np.median(ratio) < 1.15 and ratio.max() < 1.5  # measured 1.08 and 1.33 on this jittered grid
 
 
 def test_medial_axis_of_a_strip_runs_along_its_middle(plane):
