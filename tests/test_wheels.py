@@ -49,7 +49,7 @@ painted = bpy.ops.contact_edit.paint(name="tip", source="SELECTION")
 from mathutils import Vector
 wall = mug.matrix_world @ Vector((-0.04, 0.0, 0.06))  # the side facing the palm
 transferred = bpy.ops.contact_edit.transfer(patch="tip", location=wall, direction=(0.0, 0.0, 1.0))
-solved = bpy.ops.contact_edit.solve(stage="ALL")
+solved = bpy.ops.contact_edit.solve(stage="ALL", max_evaluations=6000)
 print("RESULT " + json.dumps(dict(
     installed=list(installed), painted=list(painted), transferred=list(transferred), solved=list(solved),
     summary=scene.contact_edit.last_solve, modules=modules, numpy=numpy.__version__, scipy=scipy.__version__,
