@@ -169,7 +169,7 @@ def run_contacts(repeat: int = 5, progress: Callable[[str], None] | None = None)
     interactive edits) and a bulk atlas transfer of 100,000 contacts."""
     from .atlas import ContactAtlas
     from .axis import Axis
-    from .default_axes import farthest_pair_axis
+    from .default_axes import farthest_pair_axis, medial_axis
     from .patch import ContactPatch
     from .primitives import icosphere, scan_like_torus
 
@@ -188,6 +188,8 @@ def run_contacts(repeat: int = 5, progress: Callable[[str], None] | None = None)
     rows.append(Row(f"parameterize a {len(points)}-point patch ({len(axis)} axis points, exact)", ours))
     ready = _median_time(lambda: ContactPatch(mesh, points, farthest_pair_axis(mesh, points)), repeat)
     rows.append(Row("paint -> patch ready (default axis + parameterization)", ready))
+    medial = _median_time(lambda: ContactPatch(mesh, points, medial_axis(mesh, points)), repeat)
+    rows.append(Row(f"paint -> patch ready (medial axis, {len(medial_axis(mesh, points))} points)", medial))
     patch = ContactPatch(mesh, points, axis)
 
     say("edits")

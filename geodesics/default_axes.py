@@ -2,8 +2,8 @@
 
 * :func:`farthest_pair_axis` — the geodesic between the patch's two farthest points.
 * :func:`medial_axis` — an approximate (smoothed) medial axis: the heat-method distance from the patch
-  boundary, points where its gradient turns by more than π/2 between neighbouring faces, joined greedily
-  in order of Dijkstra distance.
+  boundary, the vertices where its gradient turns by more than π/2 between the faces around them,
+  joined greedily in order of Dijkstra distance.
 """
 
 from __future__ import annotations
@@ -23,6 +23,11 @@ CANDIDATES = 8
 #: Patch points, the farthest from an end by the edge-graph estimate, whose exact distances decide the
 #: other end.
 SHORTLIST = 16
+#: The heat method's time step for the medial axis, as a multiple of the mean edge length squared (the
+#: heat method's own default is 1). At 4 the distance is smoothed over about two edge lengths, the
+#: chain's spacing: enough that a patch's corners (where the gradient turns by π/2 exactly) leave no
+#: spurs, little enough that an elongated patch keeps most of its axis.
+MEDIAL_SMOOTHING = 2.0
 
 
 def farthest_pair_axis(mesh: TriMesh, points: SurfacePoints) -> Axis:
@@ -97,37 +102,34 @@ def _edge_graph(mesh: TriMesh) -> coo_matrix:
 
 def medial_axis(mesh: TriMesh, points: SurfacePoints, spacing: float | None = None) -> Axis:
     """Axis through the patch's smoothed medial axis (§6.2); falls back to :func:`farthest_pair_axis`
-    when the patch is too thin or small to have one.
+    when the patch is too small to have one (under four faces, or no interior vertex).
+
+    The heat-method distance u from the patch boundary is smoothed, so a round patch's medial axis is
+    short (a disc's is its centre) and an elongated one's runs along its middle.
 
     Parameters
     ----------
     spacing : float, optional
-        Minimum distance between consecutive axis points along the chain (default: two mean edge lengths).
+        Minimum distance between consecutive axis points along the chain (default: two mean edge
+        lengths); the chain's two ends are always kept.
     """
     import potpourri3d
 
     region = _region_faces(mesh, points)
     if region.size < 4:
         return farthest_pair_axis(mesh, points)
-    F = mesh.faces[region]
-    used, local = np.unique(F, return_inverse=True)
+    used, local = np.unique(mesh.faces[region], return_inverse=True)
     local = local.reshape(-1, 3)
     boundary = _boundary_vertices(local)
     if boundary.size == 0 or boundary.size == used.size:
         return farthest_pair_axis(mesh, points)
-    solver = potpourri3d.MeshHeatMethodDistanceSolver(mesh.vertices[used], local)
+    solver = potpourri3d.MeshHeatMethodDistanceSolver(mesh.vertices[used], local, t_coef=MEDIAL_SMOOTHING)
     u = solver.compute_distance_multisource(boundary)
-    medial = _turning_edges(mesh, region, u[local])
-    if medial.size < 2:
-        return farthest_pair_axis(mesh, points)
-    chain = _greedy_chain(mesh, used, local, medial, spacing or 2 * mesh.mean_edge_length)
+    medial = np.setdiff1d(_turning_vertices(mesh, region, local, u[local]), boundary)
+    chain = _greedy_chain(mesh.vertices[used], local, medial, spacing or 2 * mesh.mean_edge_length)
     if len(chain) < 2:
         return farthest_pair_axis(mesh, points)
-    k = chain % 3
-    bary = np.zeros((chain.size, 3))
-    bary[np.arange(chain.size), k] = 0.5
-    bary[np.arange(chain.size), (k + 1) % 3] = 0.5
-    return Axis(mesh, SurfacePoints(chain // 3, bary))
+    return Axis(mesh, SurfacePoints.from_vertices(mesh, used[chain]))
 
 
 def _region_faces(mesh: TriMesh, points: SurfacePoints) -> np.ndarray:
@@ -147,49 +149,53 @@ def _boundary_vertices(F: np.ndarray) -> np.ndarray:
     return np.unique(unique[count == 1])
 
 
-def _turning_edges(mesh: TriMesh, region: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Halfedges between two region faces across which the distance gradient turns by more than π/2.
+def _turning_vertices(mesh: TriMesh, region: np.ndarray, local: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Local vertices where the gradient of u turns by more than π/2: those shared by two region faces
+    whose gradients point more than π/2 apart.
 
-    ``u`` (r, 3) holds the distance at each region face's corners.
+    ``local`` (r, 3) holds the region faces' corners as local vertex ids, ``u`` (r, 3) the distance
+    there. Faces around a vertex, not only across an edge, are compared: the ridge of u usually runs
+    through faces, where neighbours across one edge each see half the turn.
     """
     P = mesh.face_points[region]
     twice_area = (np.conj(P[:, 1] - P[:, 0]) * (P[:, 2] - P[:, 0])).imag
     grad_b = 1j * (np.roll(P, -2, axis=1) - np.roll(P, -1, axis=1)) / twice_area[:, None]
     grad = (u * grad_b).sum(1)  # the gradient of u in each region face's frame
-    in_region = np.full(mesh.n_faces, -1)
-    in_region[region] = np.arange(region.size)
-    h = (3 * region[:, None] + np.arange(3)).ravel()
-    t = mesh.twin[h]
-    other = np.where(t >= 0, in_region[np.maximum(t, 0) // 3], -1)
-    interior = (other >= 0) & (h < t)  # each edge between two region faces, once
-    here = grad[np.repeat(np.arange(region.size), 3)[interior]]
-    there = grad[other[interior]] / mesh.halfedge_rotation[h[interior]]  # into this face's frame
-    return h[interior][(np.conj(here) * there).real < 0]
+    axes = mesh.face_axes(region)
+    grad = grad.real[:, None] * axes[:, 0] + grad.imag[:, None] * axes[:, 1]  # (r, 3), in 3D
+    r = region.size
+    incidence = coo_matrix((np.ones(3 * r), (local.ravel(), np.repeat(np.arange(r), 3)))).tocsr()
+    pairs = (incidence.T @ incidence).tocoo()  # faces sharing at least one vertex
+    f, g = pairs.row, pairs.col
+    turning = (f < g) & (np.einsum("ij,ij->i", grad[f], grad[g]) < 0)
+    Ff, Fg = local[f[turning]], local[g[turning]]
+    return np.unique(Ff[(Ff[:, :, None] == Fg[:, None, :]).any(2)])
 
 
-def _greedy_chain(mesh, used, local, halfedges, spacing) -> np.ndarray:
-    """Order medial edge midpoints into a chain: start at one end of the farthest pair (Dijkstra distance
-    over the region's edges), then repeatedly step to the nearest unvisited one, keeping points at least
-    ``spacing`` apart."""
-    V = mesh.vertices[used]
+def _greedy_chain(V: np.ndarray, local: np.ndarray, medial: np.ndarray, spacing: float) -> np.ndarray:
+    """Order the ``medial`` local vertices into a chain, as Dijkstra distances over the region's edges
+    (vertices ``V``, faces ``local``) say: start at one end of their farthest pair, then repeatedly visit
+    the unvisited point nearest the last kept one, keeping it if it is at least ``spacing`` away (so the
+    points near each kept one are used up, and the chain does not double back along a wide band). The
+    last point visited is always kept, as the chain's far end."""
+    if medial.size < 2:
+        return medial
     edges = np.concatenate([local[:, [0, 1]], local[:, [1, 2]], local[:, [2, 0]]])
     w = np.linalg.norm(V[edges[:, 0]] - V[edges[:, 1]], axis=1)
-    n = used.size
-    graph = coo_matrix((w, (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
-    where = np.searchsorted(used, mesh.halfedge_tail[halfedges])  # each midpoint's nearest corner
-    d = dijkstra(graph, directed=False, indices=np.unique(where))
-    index = np.searchsorted(np.unique(where), where)
-    between = d[index][:, where]
-    start = int(np.argmax(between.max(1)))
-    order = [start]
-    unvisited = np.ones(halfedges.size, bool)
-    unvisited[start] = False
+    graph = coo_matrix((w, (edges[:, 0], edges[:, 1])), shape=(len(V), len(V))).tocsr()
+    between = dijkstra(graph, directed=False, indices=medial)[:, medial]
+    kept = [int(np.argmax(between.max(1)))]
+    unvisited = np.ones(medial.size, bool)
+    unvisited[kept[0]] = False
+    last = kept[0]
     while unvisited.any():
-        cand = np.where(unvisited, between[order[-1]], np.inf)
-        nxt = int(np.argmin(cand))
-        if not np.isfinite(cand[nxt]):
+        candidates = np.where(unvisited, between[kept[-1]], np.inf)
+        last = int(np.argmin(candidates))
+        if not np.isfinite(candidates[last]):
             break
-        unvisited[nxt] = False
-        if between[order[-1], nxt] >= spacing:
-            order.append(nxt)
-    return halfedges[np.array(order)]
+        unvisited[last] = False
+        if candidates[last] >= spacing:
+            kept.append(last)
+    if kept[-1] != last:
+        kept.append(last)
+    return medial[np.array(kept)]
