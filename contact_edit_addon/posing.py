@@ -86,18 +86,13 @@ def object_in_armature(target: bpy.types.Object, posed: bridge.PosedHand) -> np.
     return np.linalg.inv(np.array(armature.matrix_world)) @ np.array(target.matrix_world)
 
 
-def transformed(mesh: TriMesh, M: np.ndarray) -> TriMesh:
-    """``mesh`` moved by the (4, 4) matrix M (the object's mesh into armature space)."""
-    return TriMesh(mesh.vertices @ M[:3, :3].T + M[:3, 3], mesh.faces)
-
-
 def object_solid(mesh: TriMesh, to_armature: np.ndarray) -> MeshSDF | None:
     """The object's signed distance in armature space, for keeping the hand out of it. None for an open
     mesh (a plane, a scan with holes), which has no inside, and for an inside-out one (a mould, a room:
     its faces point in), whose "inside" is all the space around it, where the hand starts."""
     if np.any(mesh.twin < 0) or mesh.signed_volume <= 0:
         return None
-    return MeshSDF(transformed(mesh, to_armature))
+    return MeshSDF(bridge.moved(mesh, to_armature))
 
 
 def problem(scene: bpy.types.Scene, stage: str = "ALL") -> Problem:
@@ -357,7 +352,7 @@ def flex(
             f"hand root, such as {', '.join(rig.names[1:4]) or 'none'})"
         )
     chains = _chains(rig.parents, selected)
-    inside = transformed(bridge.trimesh(target), object_in_armature(target, posed))
+    inside = bridge.moved(bridge.trimesh(target), object_in_armature(target, posed))
     skin = posed.skin
     manipulator = Hand(
         skin.mesh, rig, skin.weights, kind=f"'{hand.name}'", length=skin.size,

@@ -270,6 +270,32 @@ def test_contacts_follow_a_changed_mesh_by_position(tmp_path):
     assert out["gap"] < 1e-9  # the surface did not move, so the contacts did not either
 
 
+def test_a_mesh_carried_into_another_space_is_built_once_per_mesh_and_matrix(tmp_path):
+    """Each solve carries the object's mesh into the armature's space; the carried mesh (and what is built
+    for it, like its closest-point index) is kept while neither the mesh nor the matrix changes."""
+    out = run_blender(
+        """
+        from contact_edit_addon import bridge
+        mesh = bridge.trimesh(hand)
+        M = np.eye(4); M[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]; M[:3, 3] = (0.1, 0.2, 0.3)
+        first, again = bridge.moved(mesh, M), bridge.moved(mesh, M.copy())
+        N = M.copy(); N[0, 3] += 1e-3
+        other = bridge.moved(mesh, N)
+        hand.data.vertices[0].co.z += 0.01
+        changed = bridge.moved(bridge.trimesh(hand), M)
+        result(dict(
+            same=first is again, other=other is not first, changed=changed is not first,
+            gap=float(np.abs(first.vertices - (mesh.vertices @ M[:3, :3].T + M[:3, 3])).max()),
+            moved_by=float(np.abs(changed.vertices - first.vertices).max()),
+        ))
+        """,
+        tmp_path,
+        setup=SETUP,
+    )
+    assert out["same"] and out["other"] and out["changed"]
+    assert out["gap"] == 0.0 and abs(out["moved_by"] - 0.01) < 1e-7  # Blender keeps float32 coordinates
+
+
 def test_operators_explain_why_they_are_unavailable(tmp_path):
     out = run_blender(
         """

@@ -22,6 +22,7 @@ from .armature import (
 from .errors import BridgeError
 from .mesh import (
     mesh_arrays,
+    moved,
     object_to_world,
     points_from_hits,
     points_from_vertices,
@@ -42,6 +43,7 @@ __all__ = [
     "hand_plan",
     "hand_rig",
     "mesh_arrays",
+    "moved",
     "object_to_world",
     "points_from_hits",
     "points_from_vertices",

@@ -21,13 +21,13 @@ import numpy as np
 from mathutils import Euler, Matrix, Quaternion
 from scipy import sparse
 
-from geodesics import SurfacePoints, TriMesh
+from geodesics import SurfacePoints
 from solver import SkinnedMesh, SolverError
 from solver.control_rig import ControlRig
 from solver.controls import Armature, Plan
 
 from .errors import BridgeError
-from .mesh import vertex_group_weights
+from .mesh import cached_trimesh, vertex_group_weights
 from .rigs import read_armature
 
 #: Blender's Armature modifier leaves a vertex in place when its deform weights sum to no more than this.
@@ -218,7 +218,7 @@ def posed_hand(
         hand.data.vertices.foreach_get("co", vertices)
         M = rig.hand_to_armature
         rest = vertices.reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]
-        skin = SkinnedMesh(TriMesh(rest, faces), control_rig, rig.weights)
+        skin = SkinnedMesh(cached_trimesh(rest, faces), control_rig, rig.weights)
     except SolverError as err:
         raise BridgeError(str(err), hand.name) from err
     return PosedHand(hand.name, rig.armature.name, skin, M)

@@ -3,7 +3,10 @@
 The rest shape of a mesh object (its own vertices, no modifiers) or, when asked, its evaluated
 deformed shape, triangulated by :meth:`geodesics.TriMesh.from_polygons` (our triangulation, so that
 intrinsic data stays valid however Blender triangulates for display). Meshes are cached by a
-fingerprint of their topology and coordinates, so repeated operations on an unchanged mesh are cheap.
+fingerprint of their topology and coordinates, so repeated operations on an unchanged mesh are cheap: a
+cached mesh keeps what the geodesic and tracing code builds for it (:func:`geodesics.mesh.per_mesh`)
+for the session, until the mesh changes. :func:`moved` does the same for a mesh carried into another
+space (an object's mesh in its hand's armature space, as each solve needs it).
 """
 
 from __future__ import annotations
@@ -19,7 +22,8 @@ from geodesics import MeshError, SurfacePoints, TriMesh
 from .errors import BridgeError
 
 _cache: dict[tuple, TriMesh] = {}
-_CACHE_SIZE = 8
+#: Meshes kept: a hand and an object, each at rest and in the armature's space, with room for more.
+_CACHE_SIZE = 16
 
 
 def mesh_arrays(mesh: bpy.types.Mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -59,13 +63,29 @@ def trimesh(obj: bpy.types.Object, deformed: bool = False, depsgraph=None) -> Tr
             "contacts; use the rest shape or apply the modifiers"
         )
     key = (obj.name, deformed, _fingerprint(vertices, corners, sizes))
+    try:
+        return _cached(key, lambda: TriMesh.from_polygons(vertices, (corners, sizes)))
+    except MeshError as err:
+        raise BridgeError(
+            f"'{obj.name}' cannot carry contacts: {err}", obj.name, err.faces, err.vertices
+        ) from err
+
+
+def moved(mesh: TriMesh, M: np.ndarray) -> TriMesh:
+    """``mesh`` carried by the (4, 4) matrix ``M`` (same faces, so the same surface points)."""
+    return cached_trimesh(mesh.vertices @ M[:3, :3].T + M[:3, 3], mesh.faces)
+
+
+def cached_trimesh(vertices: np.ndarray, faces: np.ndarray) -> TriMesh:
+    """``TriMesh(vertices, faces)``, from the cache when the same arrays were given before."""
+    return _cached(("arrays", _fingerprint(vertices, faces)), lambda: TriMesh(vertices, faces))
+
+
+def _cached(key: tuple, build) -> TriMesh:
+    """The mesh cached under ``key``, else ``build()`` (kept, the oldest of more than ``_CACHE_SIZE``
+    dropped)."""
     if key not in _cache:
-        try:
-            _cache[key] = TriMesh.from_polygons(vertices, (corners, sizes))
-        except MeshError as err:
-            raise BridgeError(
-                f"'{obj.name}' cannot carry contacts: {err}", obj.name, err.faces, err.vertices
-            ) from err
+        _cache[key] = build()
         while len(_cache) > _CACHE_SIZE:
             _cache.pop(next(iter(_cache)))
     return _cache[key]

@@ -25,8 +25,7 @@ def mirror_space(obj: bpy.types.Object) -> np.ndarray:
 
 def in_space(mesh: TriMesh, obj: bpy.types.Object, space: np.ndarray) -> TriMesh:
     """The object's mesh with its vertices carried into ``space`` (same faces, so the same surface points)."""
-    M = np.linalg.inv(space) @ np.array(obj.matrix_world)
-    return TriMesh(mesh.vertices @ M[:3, :3].T + M[:3, 3], mesh.faces)
+    return bridge.moved(mesh, np.linalg.inv(space) @ np.array(obj.matrix_world))
 
 
 def counterpart(obj: bpy.types.Object) -> bpy.types.Object:
