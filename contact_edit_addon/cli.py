@@ -8,6 +8,7 @@ Subcommands:
   side by side) and the flex-to-contact grasp.
 * ``bench rigs`` — contact IK on a Rigify hand (through its controls, constraints and B-Bones) beside the
   same contacts on the procedural human hand.
+* ``bench operators`` — how long each interactive operator holds Blender's main thread, on the demo's scene.
 * ``bench tangible`` — the puppet device's serial link under corruption, pose interpolation per frame,
   and the rig reduction's error against kit size (the paper's Fig. 7).
 * ``ablation`` — the contact IK ablation of Contact Edit's Fig. 11 as a table (each term of Eq. 2 removed).
@@ -23,7 +24,8 @@ Subcommands:
 * ``bench retarget`` — the whole retarget of a long, densely touching motion, stage by stage, and its
   speed-up from one to two worker processes.
 
-``demo``, ``pose`` and ``bench rigs`` need Blender's Python module (``pip install "contact-edit[blender]"``).
+``demo``, ``pose``, ``bench rigs`` and ``bench operators`` need Blender's Python module
+(``pip install "contact-edit[blender]"``).
 
 Errors in the input end a command with one line on stderr, ``contact-edit <command>: <what is wrong>``,
 and exit status 1 (``--debug`` adds the traceback); Ctrl-C ends it with a line saying what is kept and
@@ -173,9 +175,9 @@ def _bench(args: argparse.Namespace) -> int:
     from geodesics import benchmark
 
     runs = f"median of {args.repeat} runs after {benchmark.WARMUP} untimed ones"
+    if args.target in ("rigs", "operators") and _blender() is None:
+        return 2
     if args.target == "rigs":
-        if _blender() is None:
-            return 2
         from . import rig_benchmark
 
         runs = f"evaluations: median of {rig_benchmark.EVALUATIONS}; solves: median of {args.repeat} poses"
@@ -200,6 +202,12 @@ def _bench(args: argparse.Namespace) -> int:
 
         with quiet_stdout(not args.debug):  # Rigify's Generate Rig reports every step on stdout
             rows = rig_benchmark.run(repeat=args.repeat, progress=_progress)
+    elif args.target == "operators":
+        from . import operator_benchmark
+        from .batch import quiet_stdout
+
+        with quiet_stdout(not args.debug):
+            rows = operator_benchmark.run(repeat=args.repeat, progress=_progress)
     elif args.target == "tangible":
         from tangible import benchmark as tangible_benchmark
 
@@ -479,7 +487,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bench.add_argument(
         "target",
-        choices=["geodesics", "contacts", "solver", "rigs", "tangible", "retarget"],
+        choices=["geodesics", "contacts", "solver", "rigs", "operators", "tangible", "retarget"],
         help="what to benchmark",
     )
     bench.add_argument("--repeat", type=int, default=7, help="runs per timing (the median is shown)")

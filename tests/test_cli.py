@@ -16,6 +16,20 @@ def test_bench_geodesics_prints_the_table(capsys):
     assert "potpourri3d" in out and "pygeodesic" in out
 
 
+def test_bench_operators_times_every_interactive_operator_on_the_demo_scene(tmp_path):
+    """In a fresh process: the benchmark builds the demo scene in the bpy module it imports."""
+    from .blender import contact_edit
+
+    done = contact_edit("bench", "operators", "--repeat", "1", cwd=tmp_path, user_dir=tmp_path)
+    assert done.returncode == 0, done.stderr
+    for task in ("translate the palm", "rotate the palm", "bend the palm", "paint 108 selected vertices",
+                 "axis of the index tip (farthest pair", "axis of the index tip (medial",
+                 "transfer the index tip", "solve: plan, first evaluation",
+                 "solve: plan (the main thread's part)"):  # fmt: skip
+        (line,) = [line for line in done.stdout.splitlines() if line.startswith(task)]
+        assert re.search(r"\d+\.\d ms +100\.0 ms .* goal; longest \d+\.\d ms", line), line
+
+
 def test_bad_arguments_are_refused(capsys):
     with pytest.raises(SystemExit):
         main(["bench", "nothing"])
