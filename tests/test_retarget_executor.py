@@ -53,6 +53,15 @@ def test_serial_and_process_runs_agree_and_store_every_frame(tmp_path):
     assert sorted(FrameStore(tmp_path / "b", RUN).done()) == list(range(12))
 
 
+def test_a_result_holding_python_objects_is_refused_not_stored_unreadable(tmp_path):
+    store = FrameStore(tmp_path, RUN)
+    with pytest.raises(SolverError, match=r"frame 3: cannot store names: objects, not numbers"):
+        store.save(3, {"theta": np.zeros(4), "names": np.array(["a", None], dtype=object)})
+    assert not store.done() and not store.path(3).exists()
+    store.save(3, {"theta": np.zeros(4), "status": np.array("converged")})  # text is not pickled
+    assert store.load(3)["status"] == "converged"
+
+
 def test_an_interrupted_run_resumes_with_only_the_missing_frames(tmp_path):
     store = FrameStore(tmp_path, RUN)
     calls = []

@@ -71,8 +71,12 @@ class FrameStore:
 
     def save(self, frame: int, result: Result) -> None:
         """Store frame ``frame``'s result atomically, each value as an array of its own shape (a number as a
-        0-d array)."""
+        0-d array). Values must be numbers or arrays of them: :meth:`load` reads no pickled objects, so one
+        is refused here rather than stored as a file that would read back as damaged."""
         arrays = {name: np.asarray(value) for name, value in result.items()}
+        pickled = [name for name, a in arrays.items() if a.dtype.hasobject]
+        if pickled:
+            raise SolverError(f"frame {frame}: cannot store {', '.join(pickled)}: objects, not numbers")
         with atomic_file(self.path(frame)) as f:
             np.savez(f, **arrays)
 
