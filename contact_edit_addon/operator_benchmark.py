@@ -30,6 +30,8 @@ from .operators.solve import REDRAW_RATE
 
 #: What a user waits at most for any operator of ours (issue 15).
 GOAL = 0.1
+#: Evaluations a solve may take to find its first better pose before the benchmark gives up.
+IMPROVEMENT_WITHIN = 200
 #: Vertices this close to the index tip's patch centre (metres) are painted from the selection.
 PAINTED = 0.012
 
@@ -71,19 +73,22 @@ def _worker_time(call: Callable[[], object]) -> float:
 
 def _first_pose(scene, repeat: int) -> tuple[float, float]:
     """Median and longest seconds from a solve's start to its first better pose applied: the plan, the
-    first evaluation that improves on the start, and applying it (the redraw tick is added apart)."""
+    evaluations until one improves on the start pose (what the viewport shows first: the start pose
+    itself is evaluated first), and applying it (the redraw tick is added apart)."""
 
     def once() -> float:
         start = time.perf_counter()
         problem = posing.problem(scene)
-        first = []
+        steps = []
 
         def progress(step) -> bool:
-            first.append(step.theta)
-            return True  # one evaluation is enough: stop
+            steps.append(step)
+            return step.energy < steps[0].energy  # stop at the first improvement
 
-        problem.ik.solve(problem.theta0, problem.free, progress, 50)
-        problem.apply(first[0])
+        problem.ik.solve(problem.theta0, problem.free, progress, IMPROVEMENT_WITHIN)
+        if steps[-1].energy >= steps[0].energy:
+            raise RuntimeError(f"no better pose within {IMPROVEMENT_WITHIN} evaluations of the demo's solve")
+        problem.apply(steps[-1].theta)
         took = time.perf_counter() - start
         problem.apply(problem.theta0)
         return took
@@ -144,11 +149,12 @@ def run(repeat: int = 7, progress: Callable[[str], None] | None = None) -> list[
         median, longest = _times(call, repeat)
         rows.append(Row(label, median, GOAL, "goal", f"longest {1e3 * longest:.1f} ms"))
     say("solve: first pose")
+    scene.frame_set(demo.OPEN_FRAME)  # the demo's open hand, keyed before its solve
     median, longest = _first_pose(scene, repeat)
     tick = 1.0 / REDRAW_RATE
     rows.append(
         Row(
-            "solve: plan, first evaluation and its pose applied",
+            "solve from the open hand: plan, first better pose applied",
             median,
             GOAL,
             "goal",

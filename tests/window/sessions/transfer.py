@@ -10,6 +10,23 @@ from common import addon, bridge, example, open_contact_tab
 from mathutils import Vector
 
 
+class timed:
+    """``module.name`` replaced by itself, timed: the (start, end) monotonic seconds of each call; put
+    it back with ``module.name = timed(...).function``."""
+
+    def __init__(self, module, name: str):
+        self.function, self.calls = getattr(module, name), []
+
+        def call(*args, **kwargs):
+            start = time.monotonic()
+            try:
+                return self.function(*args, **kwargs)
+            finally:
+                self.calls.append((start, time.monotonic()))
+
+        setattr(module, name, call)
+
+
 def select_palm_side(hand, reach: float, width: float = 1.0) -> None:
     """The palm side of the fingers within ``reach`` metres of the longest finger's tip (and ``width``
     of it across), as the paint-from-selection tool takes them."""
@@ -69,6 +86,7 @@ def steps(s):
         bpy.ops.contact_edit.paint(name="fingers", source="SELECTION")
         bpy.ops.contact_edit.transfer(patch="fingers", location=side, direction=(0.0, 0.0, 1.0))
     armature = hand.parent
+    posing = addon("posing")
     root = armature.pose.bones[0]
     root.rotation_mode = "XYZ"
     view.rv3d.view_distance = 0.45
@@ -91,13 +109,20 @@ def steps(s):
         bpy.context.view_layer.update()
         started.append(pose())
         posed, began = root.rotation_euler[:], time.monotonic()
+        planned = timed(posing, "problem")
         yield from s.key("ctrl+shift+e", settle=0.0)
         while not solving() and time.monotonic() - began < 10:
             yield 0.01
         if then is None:
             while root.rotation_euler[:] == posed and time.monotonic() - began < 10:
                 yield 0.01
-            s.record("first_pose_after", time.monotonic() - began)
+            now = time.monotonic()
+            posing.problem = planned.function
+            s.record("first_pose_after", now - began)
+            (start, end), *_ = planned.calls
+            # Where the time went: the key reaching the operator, its plan on the main thread, and the
+            # first evaluation in the worker until the redraw tick applies its pose and the poll sees it.
+            s.record("first_pose_parts", {"input": start - began, "plan": end - start, "first": now - end})
             return
         sent = time.monotonic()
         s.xdotool(*then)
