@@ -155,7 +155,15 @@ def matrix_to_axis_angle(R) -> np.ndarray:
 
     The identity gives angle 0 about +y (Blender's default axis).
     """
-    q = matrix_to_quaternion(R)
+    return quaternion_to_axis_angle(matrix_to_quaternion(R))
+
+
+def quaternion_to_axis_angle(q) -> np.ndarray:
+    """(..., 4) ``(angle, x, y, z)`` of quaternions (..., 4) (normalized first), as Blender's
+    ``Quaternion.to_axis_angle``: the angle in ``[0, 2π]`` (``[0, π]`` for ``w >= 0``), so that a curve of
+    quaternions kept continuous in sign stays continuous; the identity gives angle 0 about +y."""
+    q = _array(q)
+    q = q / _norm(q, axis=-1, keepdims=True)
     sin_half = _norm(q[..., 1:], axis=-1, keepdims=True)
     angle = 2 * analytic.atan2(sin_half[..., 0], q[..., 0])
     axis = np.divide(q[..., 1:], sin_half, out=np.zeros_like(q[..., 1:]), where=sin_half.real > 0)

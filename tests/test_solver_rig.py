@@ -13,6 +13,7 @@ from solver.rotations import (
     matrix_to_axis_angle,
     matrix_to_euler,
     matrix_to_quaternion,
+    quaternion_to_axis_angle,
     quaternion_to_matrix,
 )
 
@@ -94,6 +95,12 @@ def test_quaternion_and_axis_angle_conversions():
     assert np.allclose(axis_angle_to_matrix([np.pi / 2, 0, 0, 2.0]), quarter, atol=1e-15)
     assert np.allclose(matrix_to_axis_angle(quarter), [np.pi / 2, 0, 0, 1], atol=1e-14)
     assert np.allclose(matrix_to_axis_angle(np.eye(3)), [0, 0, 1, 0])
+    # -q is the same rotation, read as the turn the other way round: angle 2π - θ about the same axis
+    # (Blender's Quaternion.to_axis_angle), so a sign-continuous curve of quaternions stays continuous.
+    turned = quaternion_to_axis_angle(-3.0 * q)  # normalized first
+    assert np.allclose(axis_angle_to_matrix(turned), R, atol=1e-12)
+    assert np.allclose(turned[:, 0], 2 * np.pi - matrix_to_axis_angle(R)[:, 0], atol=1e-12)
+    assert np.all((turned[:, 0] >= np.pi) & (turned[:, 0] <= 2 * np.pi))
     with pytest.raises(SolverError):
         quaternion_to_matrix([0, 0, 0, 0])
 

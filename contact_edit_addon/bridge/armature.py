@@ -25,6 +25,7 @@ from geodesics import SurfacePoints
 from solver import SkinnedMesh, SolverError
 from solver.control_rig import ControlRig
 from solver.controls import Armature, Plan
+from solver.rotations import euler_to_matrix, matrix_to_quaternion, quaternion_to_axis_angle
 
 from .errors import BridgeError
 from .mesh import cached_trimesh, vertex_group_weights
@@ -303,47 +304,106 @@ def apply_pose(posed: PosedHand, theta, frame: int | None = None) -> None:
     rigid motion), keying them at ``frame`` if given. A control θ leaves where it was read gets back the
     exact values it was read with, so that a cancelled solve restores them bit for bit."""
     armature = posed.armature_object()
+    theta = posed.rig.check_theta(theta)
+    channels = pose_channels(posed, theta[None])
+    for name, path, values in channels:
+        setattr(armature.pose.bones[name], path, values[0])
+    if frame is not None:
+        for name, path, _ in channels:
+            armature.pose.bones[name].keyframe_insert(path, frame=frame, group=name)
+
+
+def pose_channels(posed: PosedHand, thetas) -> list[tuple[str, str, np.ndarray]]:
+    """The channel values :func:`apply_pose` gives the armature's controls, for many poses at once.
+
+    Parameters
+    ----------
+    posed : PosedHand
+    thetas : (F, d)
+        One pose per row (finite, one value per DOF: the caller checks).
+
+    Returns
+    -------
+    list of (bone, path, values)
+        Per keyed channel, root control first: the pose bone's name, the property (``location``, or the
+        :func:`rotation_path` of its rotation mode) and its values (F, 3 or 4). The root's locked location
+        channels keep the values read. Rotations are continuous, so keys interpolate the short way: the
+        first row's with the pose bones' current values (as :func:`set_bone_rotation`), each later row's
+        with the row before (Euler angles nearest, quaternion signs kept). A control that a row leaves
+        where it was read gets the exact values it was read with (on later rows, up to a quaternion's sign).
+    """
+    armature = posed.armature_object()
     rig = posed.rig
-    theta = rig.check_theta(theta)
-    same = (theta == rig.start).reshape(-1, 3).all(axis=1)
-    keyed: list[tuple[bpy.types.PoseBone, str]] = []
+    thetas = np.asarray(thetas, np.float64).reshape(-1, rig.n_dofs)
+    n = len(thetas)
+    same = (thetas == rig.start).reshape(n, -1, 3).all(axis=2)  # per row: location, root rotation, controls
+    channels: list[tuple[str, str, np.ndarray]] = []
     root = rig.plan.root
     if root is not None:
-        pose_bone = armature.pose.bones[root]
-        if same[0] and same[1]:
-            _restore(pose_bone, rig.armature[root], location=True)
-        else:
-            M = rig.root_transform(theta) @ rig.armature[root].matrix
+        pose_bone = _pose_bone(armature, root)
+        read = rig.armature[root]
+        keep = same[:, 0] & same[:, 1]
+        locations = np.tile(read.location, (n, 1))
+        rotations = np.zeros((n, 4))  # rows kept as read take the values read instead
+        for f in np.flatnonzero(~keep):  # Blender converts pose space to the bone's channels
+            M = rig.root_transform(thetas[f]) @ read.matrix
             local = armature.convert_space(
                 pose_bone=pose_bone, matrix=Matrix(M), from_space="POSE", to_space="LOCAL"
             )
             location, rotation, _ = local.decompose()
-            pose_bone.location = [
-                old if lock else new
-                for old, new, lock in zip(rig.armature[root].location, location, rig.locked[:3], strict=True)
-            ]
-            set_bone_rotation(pose_bone, rotation)
-        keyed += [(pose_bone, "location"), (pose_bone, rotation_path(pose_bone.rotation_mode))]
+            locations[f] = np.where(rig.locked[:3], read.location, location)
+            rotations[f] = rotation
+        channels.append((root, "location", locations))
+        channels.append(_rotation_channel(pose_bone, rotations, keep, read.rotation))
     for b, name in enumerate(rig.names[1:], start=1):
-        pose_bone = armature.pose.bones[name]
-        angles = theta[3 + 3 * b : 6 + 3 * b]
-        if same[b + 1]:
-            _restore(pose_bone, rig.armature[name])
-        elif pose_bone.rotation_mode == rig.orders[b]:
-            pose_bone.rotation_euler = angles  # exactly the DOFs, no conversion
+        pose_bone = _pose_bone(armature, name)
+        read = rig.armature[name]
+        keep = same[:, b + 1]
+        angles = thetas[:, 3 + 3 * b : 6 + 3 * b]
+        if pose_bone.rotation_mode == rig.orders[b]:  # exactly the DOFs, no conversion
+            values = np.where(keep[:, None], read.rotation, angles)
+            channels.append((name, rotation_path(pose_bone.rotation_mode), values))
         else:
-            set_bone_rotation(pose_bone, Euler(angles, rig.orders[b]).to_quaternion())
-        keyed.append((pose_bone, rotation_path(pose_bone.rotation_mode)))
-    if frame is not None:
-        for pose_bone, path in keyed:
-            pose_bone.keyframe_insert(path, frame=frame, group=pose_bone.name)
+            rotations = matrix_to_quaternion(euler_to_matrix(angles, rig.orders[b]))
+            channels.append(_rotation_channel(pose_bone, rotations, keep, read.rotation))
+    return channels
 
 
-def _restore(pose_bone: bpy.types.PoseBone, read, location: bool = False) -> None:
-    """Give a pose bone back the channel values it was read with (a :class:`solver.controls.PoseBone`)."""
-    setattr(pose_bone, rotation_path(pose_bone.rotation_mode), read.rotation)
-    if location:
-        pose_bone.location = read.location
+def _pose_bone(armature: bpy.types.Object, name: str) -> bpy.types.PoseBone:
+    pose_bone = armature.pose.bones.get(name)
+    if pose_bone is None:
+        raise BridgeError(f"the control '{name}' is gone from '{armature.name}'; read the hand again")
+    return pose_bone
+
+
+def _rotation_channel(
+    pose_bone: bpy.types.PoseBone, rotations: np.ndarray, keep: np.ndarray, read
+) -> tuple[str, str, np.ndarray]:
+    """A pose bone's rotation channel over rows of quaternions (F, 4) in its own mode, continuous (see
+    :func:`pose_channels`); rows ``keep`` get the values ``read`` instead."""
+    mode = pose_bone.rotation_mode
+    path = rotation_path(mode)
+    current = np.array(getattr(pose_bone, path))
+    n = len(rotations)
+    if mode in ("QUATERNION", "AXIS_ANGLE"):
+        kept = np.array(to_quaternion(mode, read)) if mode == "AXIS_ANGLE" else np.asarray(read)
+        q = np.where(keep[:, None], kept, rotations)
+        # Each row's sign flip relative to the row before, accumulated: a product of ±1 per row.
+        flips = np.ones(n)
+        flips[1:] = np.where(np.einsum("fi,fi->f", q[1:], q[:-1]) < 0, -1.0, 1.0)
+        if mode == "QUATERNION" and not keep[0]:
+            flips[0] = -1.0 if q[0] @ current < 0 else 1.0
+        signs = np.cumprod(flips)[:, None]
+        if mode == "QUATERNION":
+            return pose_bone.name, path, q * signs
+        values = quaternion_to_axis_angle(q * signs)
+        return pose_bone.name, path, np.where(keep[:, None] & (signs > 0), read, values)
+    values = np.empty((n, 3))
+    previous = Euler(current, mode)
+    for f in range(n):  # each nearest the one before: inherently sequential
+        previous = Euler(read, mode) if keep[f] else Quaternion(rotations[f]).to_euler(mode, previous)
+        values[f] = previous
+    return pose_bone.name, path, values
 
 
 def deviation(posed: PosedHand, theta) -> float:
