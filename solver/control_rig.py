@@ -21,6 +21,7 @@ from functools import cached_property
 
 import numpy as np
 from scipy import sparse
+from scipy.spatial.transform import Rotation
 
 from . import analytic, bbone, bones, constraints
 from .controls import Plan, handles
@@ -424,6 +425,22 @@ class ControlRig:
     def root_transform(self, theta) -> np.ndarray:
         """(4, 4) the rigid motion θ gives the hand root (and the root control), armature space."""
         return self._root_transform(self.check_theta(theta)[None])[0].real
+
+    def root_dofs(self, G, compatible=None) -> np.ndarray:
+        """(6,) root DOFs whose :meth:`root_transform` is the rigid motion ``G`` (4, 4) (armature space),
+        as near it as the root's location channels reach when they cannot move it every way (the
+        translation's least-squares fit). The rotation vector is the one of length at most π, or with
+        ``compatible`` (3,) the one of its turns nearest to that (no jumps of a turn between frames)."""
+        G = np.asarray(G, dtype=np.float64)
+        w = Rotation.from_matrix(G[:3, :3]).as_rotvec()  # armature axes
+        R = rotation_vector_matrix(w[None])[0]
+        location = np.linalg.lstsq(self._moves, G[:3, 3] - self._pivot + R @ self._pivot, rcond=None)[0]
+        turn = np.linalg.solve(self._frame, w)  # the root control's axes
+        size = np.linalg.norm(turn)
+        if compatible is not None and size > 0:
+            axis = turn / size
+            turn = turn + 2 * np.pi * np.round((np.dot(compatible, axis) - size) / (2 * np.pi)) * axis
+        return np.concatenate([location, turn])
 
     def rotations(self, theta) -> dict[str, np.ndarray]:
         """Each finger control's rotation matrix (3, 3) at θ (its channel rotation)."""

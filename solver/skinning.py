@@ -140,6 +140,12 @@ class SkinnedMesh:
         """The rest mesh's bounding-box diagonal: the manipulator's characteristic size."""
         return self.mesh.bounding_diagonal
 
+    @cached_property
+    def length(self) -> float:
+        """The manipulator's length, which scales the retargeting's translation thresholds: :attr:`size`
+        (a procedural :class:`~solver.hands.Hand` has its wrist-to-fingertip length instead)."""
+        return self.size
+
     # ------------------------------------------------------------------ posing
 
     def posed_vertices(self, theta) -> np.ndarray:

@@ -113,6 +113,29 @@ def test_the_root_turns_about_the_root_controls_head():
     assert np.isclose(np.arccos((np.trace(R) - 1) / 2), np.linalg.norm(w))
 
 
+def test_root_dofs_invert_root_transform(human):
+    """ControlRig.root_dofs is the inverse of root_transform (the retargeting's root alignment), and with
+    ``compatible`` it picks, of the rotation vectors a whole turn apart, the one nearest to it."""
+    _, _, skin = human
+    rig = skin.rig
+    rng = np.random.default_rng(4)
+    for _ in range(10):
+        theta = rig.start.copy()
+        theta[:3] = rng.normal(0, 0.05, 3)
+        theta[3:6] = rng.normal(0, 1.0, 3)
+        G = rig.root_transform(theta)
+        theta[:6] = rig.root_dofs(G)
+        np.testing.assert_allclose(rig.root_transform(theta), G, rtol=0, atol=1e-12)
+        assert np.linalg.norm(theta[3:6]) <= np.pi + 1e-12
+    turn = theta[3:6] / np.linalg.norm(theta[3:6])
+    shifted = rig.root_dofs(G, compatible=theta[3:6] + 2 * np.pi * turn)
+    np.testing.assert_allclose(shifted[3:6], theta[3:6] + 2 * np.pi * turn, atol=1e-12)
+    np.testing.assert_allclose(shifted[:3], theta[:3], atol=1e-12)
+    moved = theta.copy()
+    moved[:6] = shifted
+    np.testing.assert_allclose(rig.root_transform(moved), G, rtol=0, atol=1e-12)
+
+
 # ------------------------------------------------------------------ a Rigify-like mechanism
 
 

@@ -59,6 +59,7 @@ import numpy as np
 from geodesics import SurfacePoints
 from geodesics.rigid import rigid_fit
 
+from ..control_rig import ControlRig
 from ..errors import SolverError
 from ..ik import ContactIK, Markers, Weights
 from ..rotations import matrix_to_euler
@@ -265,8 +266,13 @@ class FrameResult:
 
 
 def root_from_transform(rig, G: np.ndarray, compatible=None) -> np.ndarray:
-    """(6,) root DOFs (location, Euler angles) that move the root bone's rest pose by the world rigid
-    transform G (4, 4): the root's pose matrix becomes ``G @ matrix_local[0]``."""
+    """(6,) root DOFs that move the root by the rigid transform G (4, 4), armature space: for a
+    :class:`~solver.Rig` (location, Euler angles) the root bone's pose matrix becomes
+    ``G @ matrix_local[0]``; for a :class:`~solver.control_rig.ControlRig` the hand root moves by G from
+    where it was read (:meth:`~solver.control_rig.ControlRig.root_dofs`). ``compatible`` (3,): the
+    rotation DOFs nearest to these, of the equal ones."""
+    if isinstance(rig, ControlRig):
+        return rig.root_dofs(G, compatible)
     M = rig.matrix_local[0]
     B = np.linalg.inv(M) @ G @ M
     euler = matrix_to_euler(B[:3, :3], rig.rotation_modes[0], compatible=compatible)
@@ -275,11 +281,11 @@ def root_from_transform(rig, G: np.ndarray, compatible=None) -> np.ndarray:
 
 def _on_palm(hand: SkinnedMesh, points: SurfacePoints) -> np.ndarray:
     """(k,) whether each point moves with the root or its children (the forearm and palm), judged by
-    the bone weighing most at the point's nearest corner."""
+    the posed bone that moves the deform bone weighing most at the point's nearest corner."""
     W = hand.weights.tocsr()
     corners = hand.mesh.faces[points.faces]
     vertex = corners[np.arange(len(corners)), np.argmax(points.bary, 1)]
-    bone = np.asarray(W.argmax(axis=1)).reshape(-1)[vertex]
+    bone = hand.rig.deform_owner[np.asarray(W.argmax(axis=1)).reshape(-1)[vertex]]
     return (bone == 0) | (hand.rig.parents[bone] == 0)
 
 
