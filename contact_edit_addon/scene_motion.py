@@ -47,9 +47,11 @@ __all__ = [
     "CONTACT_FRACTION",
     "CUTOFF_FACTOR",
     "SPACING_FRACTION",
+    "SceneReader",
     "detect_contacts",
     "hand_size",
     "motion_from_scene",
+    "with_contacts",
 ]
 
 #: Default contact distance, as a fraction of the hand's size: 2.45 mm for the life-size human hand,
@@ -104,16 +106,8 @@ def motion_from_scene(
     contacts : bool
         Detect and pair the dense contacts (see the module docstring). Without them the motion has
         none, and retargets from markers only.
-    contact_distance : float, optional
-        Object points this close to the hand's skin (scene units) are contacts (default
-        :data:`CONTACT_FRACTION` of :func:`hand_size`).
-    cutoff : float, optional
-        The pairing's ε (default :data:`CUTOFF_FACTOR` contact distances).
-    spacing : float, optional
-        Mean distance between the object's surface samples (default :data:`SPACING_FRACTION` of the
-        hand's size).
-    seed : int
-        Draws the object's surface samples.
+    contact_distance, cutoff, spacing, seed
+        As :func:`with_contacts` takes them.
     progress : callable, optional
         ``progress(done, total)`` after each frame read and, with contacts, after each frame searched
         for contacts and after each frame paired (``total`` is the frame count, three times it with
@@ -133,35 +127,166 @@ def motion_from_scene(
         hand at some frames only, meshes whose normals point inwards, or a hand that never touches
         the object (then say ``contacts=False`` for a motion of markers only).
     """
-    frames = _frame_range(frame_start, frame_end)
-    _check_objects(scene, hand_obj, object_obj)
-    hand_rest = bridge.trimesh(hand_obj)
-    object_rest = bridge.trimesh(object_obj)
-    total = len(frames) * (3 if contacts else 1)
-    hand_matrices, hand_vertices, object_matrices = _read_frames(
-        scene, frames, hand_obj, object_obj, object_rest, total, progress
-    )
-    hand_mesh = _hand_mesh(hand_obj, hand_rest, hand_matrices, frames)
-    object_mesh, object_poses = _rigid_object(object_obj, object_rest, object_matrices, frames)
-    _check_outwards(hand_obj, hand_mesh)
-    _check_outwards(object_obj, object_mesh)
+    reader = SceneReader(scene, hand_obj, object_obj, frame_start, frame_end)
+    total = reader.n_frames * (3 if contacts else 1)
     try:
-        motion = Motion(
-            fps=scene.render.fps / scene.render.fps_base,
-            object_mesh=object_mesh,
-            object_poses=object_poses,
-            hand_mesh=hand_mesh,
-            hand_vertices=hand_vertices,
-        )
-    except MotionError as err:
-        raise BridgeError(f"'{hand_obj.name}' and '{object_obj.name}' do not make a motion: {err}") from None
+        while reader.read_next():
+            if progress is not None:
+                progress(reader.done, total)
+    finally:
+        reader.restore()
+    motion = reader.motion()
     if not contacts:
         return motion
+    step = reader.n_frames
+    return with_contacts(
+        motion,
+        reader.names,
+        reader.frames,
+        contact_distance=contact_distance,
+        cutoff=cutoff,
+        spacing=spacing,
+        seed=seed,
+        progress=None if progress is None else lambda done, _: progress(step + done, total),
+    )
+
+
+class SceneReader:
+    """Reads a hand-object motion from a scene one frame at a time, so that an operator can read a few
+    frames per timer tick and keep Blender responsive (:func:`motion_from_scene` reads them all).
+
+    Each :meth:`read_next` sets the scene's frame; :meth:`restore` puts back the frame the scene was on
+    (call it when done or stopped); :meth:`motion` makes the motion once every frame is read. The
+    objects are checked when the reader is made; each frame as it is read.
+    """
+
+    def __init__(self, scene, hand_obj, object_obj, frame_start, frame_end):
+        self.frames = _frame_range(frame_start, frame_end)
+        _check_objects(scene, hand_obj, object_obj)
+        self.scene, self.hand_obj, self.object_obj = scene, hand_obj, object_obj
+        #: The hand's and the object's names, for messages made where Blender data is not at hand.
+        self.names = (hand_obj.name, object_obj.name)
+        self.hand_rest = bridge.trimesh(hand_obj)
+        self.object_rest = bridge.trimesh(object_obj)
+        _, self._hand_corners, self._hand_sizes = bridge.mesh_arrays(hand_obj.data)
+        self._object_local, _, _ = bridge.mesh_arrays(object_obj.data)
+        size = max(float(np.ptp(self._object_local, axis=0).max()), 1e-30)
+        self._tolerance = SHAPE_TOLERANCE * size
+        F = len(self.frames)
+        self.hand_matrices, self.object_matrices = np.empty((F, 4, 4)), np.empty((F, 4, 4))
+        self.hand_vertices = np.empty((F, len(hand_obj.data.vertices), 3))
+        self.done = 0
+        self._current = scene.frame_current, scene.frame_subframe
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.frames)
+
+    def read_next(self) -> bool:
+        """Read the next frame; False (reading nothing) once every frame is read."""
+        if self.done == self.n_frames:
+            return False
+        f, frame = self.done, self.frames[self.done]
+        scene, hand_obj, object_obj = self.scene, self.hand_obj, self.object_obj
+        scene.frame_set(frame)
+        depsgraph = _depsgraph(scene)
+        evaluated = hand_obj.evaluated_get(depsgraph)
+        V, corners, sizes = _evaluated_arrays(evaluated)
+        if not (np.array_equal(sizes, self._hand_sizes) and np.array_equal(corners, self._hand_corners)):
+            raise BridgeError(_topology_message(hand_obj, frame, len(V), len(sizes)), hand_obj.name)
+        M = np.array(evaluated.matrix_world)
+        self.hand_matrices[f] = M
+        self.hand_vertices[f] = V @ M[:3, :3].T + M[:3, 3]
+        evaluated = object_obj.evaluated_get(depsgraph)
+        W, _, _ = _evaluated_arrays(evaluated)
+        local = self._object_local
+        if W.shape != local.shape or np.abs(W - local).max() > self._tolerance:
+            moved = "" if W.shape != local.shape else f" (by up to {np.abs(W - local).max():.3g})"
+            raise BridgeError(
+                f"'{object_obj.name}' is not rigid at frame {frame}: its modifiers or shape keys change "
+                f"its shape{moved}; the object must be moved by its transform only (apply or remove "
+                "them)",
+                object_obj.name,
+            )
+        self.object_matrices[f] = np.array(evaluated.matrix_world)
+        self.done += 1
+        return True
+
+    def restore(self) -> None:
+        """Put the scene back on the frame it was on when the reader was made."""
+        frame, subframe = self._current
+        self.scene.frame_set(frame, subframe=subframe)
+
+    def motion(self) -> Motion:
+        """The motion of the frames read (all of them), without contacts; checks what needs every frame
+        (a changing scale, a mirroring at some frames only, inward normals)."""
+        if self.done != self.n_frames:
+            raise BridgeError(f"only {self.done} of the {self.n_frames} frames are read")
+        hand_obj, object_obj, frames = self.hand_obj, self.object_obj, self.frames
+        hand_mesh = _hand_mesh(hand_obj, self.hand_rest, self.hand_matrices, frames)
+        object_mesh, object_poses = _rigid_object(object_obj, self.object_rest, self.object_matrices, frames)
+        _check_outwards(hand_obj, hand_mesh)
+        _check_outwards(object_obj, object_mesh)
+        try:
+            return Motion(
+                fps=self.scene.render.fps / self.scene.render.fps_base,
+                object_mesh=object_mesh,
+                object_poses=object_poses,
+                hand_mesh=hand_mesh,
+                hand_vertices=self.hand_vertices,
+            )
+        except MotionError as err:
+            raise BridgeError(
+                f"'{hand_obj.name}' and '{object_obj.name}' do not make a motion: {err}"
+            ) from None
+
+
+def with_contacts(
+    motion: Motion,
+    names: tuple[str, str],
+    frames,
+    *,
+    contact_distance: float | None = None,
+    cutoff: float | None = None,
+    spacing: float | None = None,
+    seed: int = 0,
+    progress: Progress | None = None,
+) -> Motion:
+    """The motion with its dense contacts found and paired (see the module docstring). Plain data only:
+    it may run off Blender's main thread.
+
+    Parameters
+    ----------
+    motion : Motion
+        Without contacts (:meth:`SceneReader.motion`).
+    names : (str, str)
+        The hand's and the object's names, for messages.
+    frames : sequence of int
+        The scene frame of each motion frame, for messages.
+    contact_distance : float, optional
+        Object points this close to the hand's skin (scene units) are contacts (default
+        :data:`CONTACT_FRACTION` of :func:`hand_size`).
+    cutoff : float, optional
+        The pairing's ε (default :data:`CUTOFF_FACTOR` contact distances).
+    spacing : float, optional
+        Mean distance between the object's surface samples (default :data:`SPACING_FRACTION` of the
+        hand's size).
+    seed : int
+        Draws the object's surface samples.
+    progress : callable, optional
+        ``progress(done, 2 * frames)`` after each frame searched for contacts and each frame paired.
+
+    Raises
+    ------
+    BridgeError
+        For a hand that never comes near the object, or contacts none of which pair.
+    """
+    hand_name, object_name = names
     size = hand_size(motion)
     distance = _positive("contact_distance", contact_distance, CONTACT_FRACTION * size)
     epsilon = _positive("cutoff", cutoff, CUTOFF_FACTOR * distance)
     gap = _positive("spacing", spacing, SPACING_FRACTION * size)
-    step = len(frames)
+    F = motion.n_frames
     found = detect_contacts(
         motion,
         distance,
@@ -169,30 +294,30 @@ def motion_from_scene(
         gap,
         seed,
         frames,
-        hand_obj.name,
-        progress=None if progress is None else lambda done, _: progress(step + done, total),
+        hand_name,
+        progress=None if progress is None else lambda done, _: progress(done, 2 * F),
     )
     if len(found) == 0:
         raise BridgeError(
-            f"'{hand_obj.name}' never comes within {distance * 1e3:.3g} mm of '{object_obj.name}' in frames "
+            f"'{hand_name}' never comes within {distance * 1e3:.3g} mm of '{object_name}' in frames "
             f"{frames[0]}-{frames[-1]}, so there are no contacts to retarget; give a larger contact "
             "distance, another frame range, or read the motion without contacts (markers only)",
-            hand_obj.name,
+            hand_name,
         )
     motion = replace(motion, object_contacts=found)
     pairing = pair_motion(
         motion,
         "object",
         cutoff=epsilon,
-        progress=None if progress is None else lambda done, _: progress(2 * step + done, total),
+        progress=None if progress is None else lambda done, _: progress(F + done, 2 * F),
     )
     if len(pairing.object_contacts) == 0:
         counts = ", ".join(f"{n} {name}" for name, n in pairing.counts().items() if n)
         raise BridgeError(
-            f"none of the {len(found)} points of '{object_obj.name}' near '{hand_obj.name}' pair with the "
+            f"none of the {len(found)} points of '{object_name}' near '{hand_name}' pair with the "
             f"hand along the object's normals ({counts}; cutoff {epsilon * 1e3:.3g} mm): do the normals "
             "of both meshes point outwards?",
-            object_obj.name,
+            object_name,
         )
     return pairing.apply(motion)
 
@@ -330,49 +455,6 @@ def _check_outwards(obj, mesh: TriMesh) -> None:
 
 
 # ------------------------------------------------------------------------------------------ reading
-
-
-def _read_frames(scene, frames, hand_obj, object_obj, object_rest, total, progress):
-    """Per frame: the hand's world matrix (F, 4, 4) and world vertices (F, n, 3), and the object's world
-    matrix (F, 4, 4); the scene's frame is restored afterwards."""
-    _, hand_corners, hand_sizes = bridge.mesh_arrays(hand_obj.data)
-    object_local, _, _ = bridge.mesh_arrays(object_obj.data)
-    tolerance = SHAPE_TOLERANCE * max(float(np.ptp(object_local, axis=0).max()), 1e-30)
-    F = len(frames)
-    hand_matrices, object_matrices = np.empty((F, 4, 4)), np.empty((F, 4, 4))
-    hand_vertices = np.empty((F, len(hand_obj.data.vertices), 3))
-    current, subframe = scene.frame_current, scene.frame_subframe
-    try:
-        for f, frame in enumerate(frames):
-            scene.frame_set(frame)
-            depsgraph = _depsgraph(scene)
-            evaluated = hand_obj.evaluated_get(depsgraph)
-            V, corners, sizes = _evaluated_arrays(evaluated)
-            if not (np.array_equal(sizes, hand_sizes) and np.array_equal(corners, hand_corners)):
-                raise BridgeError(_topology_message(hand_obj, frame, len(V), len(sizes)), hand_obj.name)
-            M = np.array(evaluated.matrix_world)
-            hand_matrices[f] = M
-            hand_vertices[f] = V @ M[:3, :3].T + M[:3, 3]
-            evaluated = object_obj.evaluated_get(depsgraph)
-            W, _, _ = _evaluated_arrays(evaluated)
-            if W.shape != object_local.shape or np.abs(W - object_local).max() > tolerance:
-                moved = (
-                    ""
-                    if W.shape != object_local.shape
-                    else f" (by up to {np.abs(W - object_local).max():.3g})"
-                )
-                raise BridgeError(
-                    f"'{object_obj.name}' is not rigid at frame {frame}: its modifiers or shape keys change "
-                    f"its shape{moved}; the object must be moved by its transform only (apply or remove "
-                    "them)",
-                    object_obj.name,
-                )
-            object_matrices[f] = np.array(evaluated.matrix_world)
-            if progress is not None:
-                progress(f + 1, total)
-    finally:
-        scene.frame_set(current, subframe=subframe)
-    return hand_matrices, hand_vertices, object_matrices
 
 
 def _topology_message(obj, frame: int, n_vertices: int, n_faces: int) -> str:
