@@ -15,9 +15,9 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from geodesics import Axis, SurfacePoints
+from geodesics import Axis, SurfacePoints, TriMesh
 
-from ..hands import Hand
+from ..hands import KINDS, Hand, make_hand
 from .annotations import AnnotationError, CurveAnnotation, HandPairAnnotation, HandRef, MarkerAnnotation
 
 #: Default ε_g as a fraction of the source hand's length (about 2.8 cm on the human hand): the contacts of
@@ -275,8 +275,24 @@ def default_annotation(
     )
 
 
+def procedural_hand(mesh: TriMesh) -> Hand | None:
+    """The procedural hand that ``mesh`` is, at its size: the kind whose mesh has the same topology (its
+    vertices and faces in the same order, as the add-on's *Add › Contact Edit* makes it, wherever it is
+    placed and however it is scaled or posed), scaled so that its rest mesh is as large; None when no
+    kind has that topology.
+
+    Parameters
+    ----------
+    mesh : TriMesh
+        A hand's rest mesh.
+    """
+    for kind in KINDS:
+        hand = make_hand(kind)
+        if hand.mesh.topology_hash == mesh.topology_hash:
+            return make_hand(kind, mesh.bounding_diagonal / hand.mesh.bounding_diagonal)
+    return None
+
+
 def _scale_of(hand: Hand) -> float:
     """The procedural scale of a hand (its length over the life-size one's)."""
-    from ..hands import make_hand
-
     return float(hand.length / make_hand(hand.kind).length) if hand.kind else 1.0
