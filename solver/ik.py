@@ -79,6 +79,14 @@ ALGORITHMS = {
     "mma": nlopt.LD_MMA,
     "ccsaq": nlopt.LD_CCSAQ,
 }
+#: What NLopt raises when it stops short of convergence (roundoff, or its generic failure). Its 2.9
+#: wheels, which the extension bundles, raise the generic failure as their own ``nlopt.runtime_error``
+#: (not a RuntimeError; nor can it be pickled, so a worker process could not even report it).
+STOPPED_SHORT = (
+    nlopt.RoundoffLimited,
+    RuntimeError,
+    *([nlopt.runtime_error] if hasattr(nlopt, "runtime_error") else []),
+)
 #: Default stopping rule: relative change of the energy, and a cap on objective evaluations.
 FTOL_REL = 1e-9
 #: How the objective's gradient is computed.
@@ -524,7 +532,7 @@ def minimize(
                 status = "max evaluations"
         except nlopt.ForcedStop:
             status = "cancelled" if cancelled[0] else "stopped"
-        except (nlopt.RoundoffLimited, RuntimeError):
+        except STOPPED_SHORT:
             status = "stopped"
     if status == "converged" and start_energy - best["energy"] <= ftol_rel * max(abs(start_energy), 1.0):
         status = "unchanged"  # nothing better than where it started (to the stopping tolerance)

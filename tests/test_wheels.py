@@ -50,9 +50,14 @@ from mathutils import Vector
 wall = mug.matrix_world @ Vector((-0.04, 0.0, 0.06))  # the side facing the palm
 transferred = bpy.ops.contact_edit.transfer(patch="tip", location=wall, direction=(0.0, 0.0, 1.0))
 solved = bpy.ops.contact_edit.solve(stage="ALL", max_evaluations=6000)
+from solver.ik import minimize  # as tests/test_solver_ik.py's optimizer failure, with the bundled NLopt
+bounds = type("Bounds", (), {"lower": np.full(2, -10.0), "upper": np.full(2, 10.0)})
+failure = minimize(lambda t: (float(t @ t), {}), lambda t: (float(t @ t), {}, np.full(2, np.nan)),
+    np.array([1.0, 2.0]), np.arange(2), np.ones(2), bounds, "lbfgs")[4]
 print("RESULT " + json.dumps(dict(
     installed=list(installed), painted=list(painted), transferred=list(transferred), solved=list(solved),
-    summary=scene.contact_edit.last_solve, modules=modules, numpy=numpy.__version__, scipy=scipy.__version__,
+    summary=scene.contact_edit.last_solve, failure=failure, modules=modules, numpy=numpy.__version__,
+    scipy=scipy.__version__,
     blender=bpy.app.version_string, python=sys.version.split()[0], warnings=caught,
     site=[p for p in sys.path if "extensions" in p and p.endswith("site-packages")],
     matplotlib=[m for m in sys.modules if m.startswith("matplotlib")])))
@@ -93,6 +98,7 @@ def test_the_extension_runs_on_its_bundled_wheels_alone_without_warnings(bpy_pyt
     for name, path in out["modules"].items():
         assert path.startswith(site), f"{name} came from {path}, not the extension's wheels"
     assert out["painted"] == out["transferred"] == out["solved"] == ["FINISHED"]
+    assert out["failure"] == "stopped"  # NLopt's generic failure, as its bundled release raises it
     assert "contacts in 1 patch pairs" in out["summary"] and out["summary"].endswith("converged")
     # Every warning Python can raise is shown, hidden ones too; the only ones are DeprecationWarnings
     # (hidden by default) that SWIG before 4.3 puts in NLopt's bindings on Python 3.12+.
