@@ -55,11 +55,11 @@ def scene_read(tmp_path_factory):
             oracle[f"hand_{{f}}"] = blender_world(hand_obj, f)
             oracle[f"mug_{{f}}"] = blender_world(mug, f)
         oracle["skinned"] = hand.posed_vertices(closed) @ place[:3, :3].T + place[:3, 3]
-        size = scene_motion.hand_size(motion)
-        distance = scene_motion.CONTACT_FRACTION * size
+        size = detection.hand_size(motion)
+        distance = detection.CONTACT_FRACTION * size
         np.savez({str(folder / "oracle.npz")!r}, **oracle)
         result({{"seconds": seconds, "calls": calls, "restored": restored, "size": size,
-                 "distance": distance, "cutoff": scene_motion.CUTOFF_FACTOR * distance,
+                 "distance": distance, "cutoff": detection.CUTOFF_FACTOR * distance,
                  "hand_size": hand.size}})
         """,
         folder,
@@ -209,11 +209,12 @@ ERRORS = """
 import re
 from contact_edit_addon.bridge import BridgeError
 from contact_edit_addon.scene_motion import motion_from_scene
+from solver import SolverError
 
 def message(*args, **kwargs):
     try:
         motion_from_scene(scene, *args, **kwargs)
-    except BridgeError as err:
+    except (BridgeError, SolverError) as err:
         return str(err)
     return None
 
