@@ -556,3 +556,18 @@ def test_default_many_to_one_markers_track_one_source_vertex(human, to_alien, mo
         np.testing.assert_allclose(got[start : start + len(m.target)], np.tile(V[vertex], (len(m.target), 1)))
         start += len(m.target)
     assert start == len(got) == 13 * annotate.MARKER_POINTS
+
+
+@pytest.mark.parametrize("kind", ["human", "alien", "tentacle"])
+def test_procedural_hand_knows_a_kind_by_its_topology_at_any_size(kind):
+    """A procedural hand's mesh moved, turned and scaled (as a Blender scene holds it) is that kind, at
+    its size; the same faces mirrored (reversed triangles) or any other mesh are none."""
+    hand = make_hand(kind)
+    turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    moved = TriMesh(1.7 * hand.mesh.vertices @ turn.T + [0.3, -2.0, 1.0], hand.mesh.faces)
+    found = annotate.procedural_hand(moved)
+    assert found.kind == annotate.procedural_kind(moved) == kind
+    assert found.length == pytest.approx(1.7 * hand.length, rel=1e-12)
+    assert found.mesh.topology_hash == hand.mesh.topology_hash
+    assert annotate.procedural_hand(TriMesh(hand.mesh.vertices, hand.mesh.faces[:, ::-1])) is None
+    assert annotate.procedural_hand(make_hand("witch" if kind == "human" else "human").mesh).kind != kind

@@ -11,6 +11,7 @@ wrist pair on the forearm so that the root is observed apart from the wrist join
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 
 import numpy as np
@@ -276,21 +277,31 @@ def default_annotation(
 
 
 def procedural_hand(mesh: TriMesh) -> Hand | None:
-    """The procedural hand that ``mesh`` is, at its size: the kind whose mesh has the same topology (its
-    vertices and faces in the same order, as the add-on's *Add › Contact Edit* makes it, wherever it is
-    placed and however it is scaled or posed), scaled so that its rest mesh is as large; None when no
-    kind has that topology.
+    """The procedural hand that ``mesh`` is, at its size (:func:`procedural_kind`), scaled so that its rest
+    mesh is as large; None when it is none of them.
 
     Parameters
     ----------
     mesh : TriMesh
         A hand's rest mesh.
     """
-    for kind in KINDS:
-        hand = make_hand(kind)
-        if hand.mesh.topology_hash == mesh.topology_hash:
-            return make_hand(kind, mesh.bounding_diagonal / hand.mesh.bounding_diagonal)
-    return None
+    kind = procedural_kind(mesh)
+    if kind is None:
+        return None
+    return make_hand(kind, mesh.bounding_diagonal / make_hand(kind).mesh.bounding_diagonal)
+
+
+def procedural_kind(mesh: TriMesh) -> str | None:
+    """The kind of procedural hand whose mesh has ``mesh``'s topology (its vertices and faces in the same
+    order, as the add-on's *Add › Contact Edit* makes it, wherever it is placed and however it is scaled
+    or posed), or None."""
+    return _kinds_by_topology().get(mesh.topology_hash)
+
+
+@functools.cache
+def _kinds_by_topology() -> dict[str, str]:
+    """Built once per process: it makes every kind of hand (a few tenths of a second)."""
+    return {make_hand(kind).mesh.topology_hash: kind for kind in KINDS}
 
 
 def _scale_of(hand: Hand) -> float:
