@@ -193,6 +193,35 @@ class VIEW3D_PT_contact_edit_rig(SubPanel, bpy.types.Panel):
         draw_message(context, layout, report.lines, "CHECKMARK" if report.ok else "ERROR")
 
 
+class VIEW3D_PT_contact_edit_retarget(SubPanel, bpy.types.Panel):
+    """Retargeting a hand-object motion onto another hand (Kinematic Motion Retargeting)."""
+
+    bl_label = "Retarget"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = self.layout
+        settings = context.scene.contact_edit_retarget
+        column = layout.column(align=True)
+        column.prop(settings, "source", icon="VIEW_PAN")
+        column.prop(settings, "held", icon="MESH_CUBE")
+        column.prop(settings, "target", icon="ARMATURE_DATA")
+        layout.prop(settings, "use_scene_range")
+        if not settings.use_scene_range:
+            row = layout.row(align=True)
+            row.prop(settings, "frame_start")
+            row.prop(settings, "frame_end")
+        layout.prop(settings, "annotation")
+        row = layout.row()
+        row.prop(settings, "contacts")
+        row.prop(settings, "workers")
+        layout.prop(settings, "folder")
+        layout.prop(settings, "action_name")
+        layout.operator("contact_edit.retarget", icon="ACTION")
+        if settings.last:
+            draw_message(context, layout, [settings.last], "INFO")
+
+
 class VIEW3D_PT_contact_edit_library(SubPanel, bpy.types.Panel):
     """Saving and loading patches as reusable libraries; manifold proxies for broken meshes."""
 
@@ -214,5 +243,6 @@ classes = (
     VIEW3D_PT_contact_edit_brush,
     VIEW3D_PT_contact_edit_pose,
     VIEW3D_PT_contact_edit_rig,
+    VIEW3D_PT_contact_edit_retarget,
     VIEW3D_PT_contact_edit_library,
 )

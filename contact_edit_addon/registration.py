@@ -12,6 +12,7 @@ from . import (
     overlays,
     panels,
     properties,
+    retarget_properties,
 )
 from .preferences import CONTACT_EDIT_AP_preferences
 
@@ -21,6 +22,7 @@ classes = (
     CONTACT_EDIT_AP_preferences,
     *properties.classes,
     *device_properties.classes,
+    *retarget_properties.classes,
     *operators.classes,
     *assets.classes,
     *panels.classes,
@@ -28,7 +30,7 @@ classes = (
 )
 #: What else the add-on adds to Blender (pointer properties on its types, handlers, menus, draw callbacks,
 #: hotkeys), once the classes are registered; taken away in the reverse order, before them.
-modules = (properties, device_properties, device_session, assets, overlays, keymaps)
+modules = (properties, device_properties, retarget_properties, device_session, assets, overlays, keymaps)
 
 register_classes, unregister_classes = bpy.utils.register_classes_factory(classes)
 

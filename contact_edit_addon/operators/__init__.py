@@ -1,7 +1,7 @@
 """The operators under ``bpy.ops.contact_edit``: each works interactively and with explicit properties
 in background mode, so scripts run the same tools an animator clicks."""
 
-from . import axis, device, edit, manage, mirror, paint, proxy, solve, transfer
+from . import axis, device, edit, manage, mirror, paint, proxy, retarget, solve, transfer
 
 classes = (
     *paint.classes,
@@ -12,5 +12,6 @@ classes = (
     *mirror.classes,
     *proxy.classes,
     *solve.classes,
+    *retarget.classes,
     *device.classes,
 )

@@ -1,0 +1,192 @@
+"""Retarget the scene's hand-object motion onto another hand, as an action on its armature (Kinematic
+Motion Retargeting, 2025), with the Retarget panel's settings (``scene.contact_edit_retarget``).
+
+Interactively nothing makes Blender wait: the frames are read a few per timer tick (the scene steps
+through them and comes back), then the contacts, the per-frame solves (in worker processes of its own),
+the refinement and the spline run in a child process (:class:`solver.retarget.job.ChildRun`: a thread
+of Blender's would hold its event loop back for half a second at a time), with the stage and the frames
+done in the header and the progress indicator; the action is keyed when they are done, as one undo
+step. Esc stops: frames solved so far are kept in the frames folder, so that Retarget again goes on from
+them. Scripts and background mode run the same steps in turn, in Blender's process.
+"""
+
+from __future__ import annotations
+
+import time
+
+import bpy
+
+from solver.retarget.job import ChildRun, Stopped
+
+from .. import scene_retarget
+from ..bridge import BridgeError
+from .common import USER_ERRORS, ExplainedPoll, guarded
+
+#: Seconds of frame reading per timer tick, and between ticks.
+READ_BUDGET = 0.04
+TICK = 0.05
+#: The stages in words, for the header.
+STAGES = {
+    "read": "reading frame",
+    "contacts": "finding contacts",
+    "transfer": "transferring contacts",
+    "root": "solving roots, frame",
+    "full": "solving poses, frame",
+    "refine": "refining",
+    "spline": "fitting splines",
+    "metrics": "measuring",
+}
+
+
+def need_hands(context) -> str | None:
+    settings = context.scene.contact_edit_retarget
+    chosen = (("source hand", settings.source), ("object", settings.held), ("target hand", settings.target))
+    missing = [label for label, obj in chosen if obj is None]
+    if missing:
+        return f"Choose the {', the '.join(missing)} in the Retarget panel first"
+    return None
+
+
+def _inputs(context) -> dict:
+    scene = context.scene
+    s = scene.contact_edit_retarget
+    start, end = (scene.frame_start, scene.frame_end) if s.use_scene_range else (s.frame_start, s.frame_end)
+    return {
+        "scene": scene,
+        "source": s.source,
+        "obj": s.held,
+        "target": s.target,
+        "frame_start": start,
+        "frame_end": end,
+        "annotation_path": s.annotation,
+        "contacts": s.contacts,
+        "folder": s.folder,
+    }
+
+
+class CONTACT_EDIT_OT_retarget(ExplainedPoll, bpy.types.Operator):
+    """Retarget the source hand's motion with the object onto the target hand, keyed as a new action on its
+    armature"""
+
+    bl_idname = "contact_edit.retarget"
+    bl_label = "Retarget"
+    bl_options = {"REGISTER", "UNDO"}
+
+    why_not = staticmethod(need_hands)
+
+    @guarded
+    def execute(self, context):
+        settings = context.scene.contact_edit_retarget
+        outcome = scene_retarget.retarget_scene(
+            **_inputs(context), workers=settings.workers or None, action_name=settings.action_name
+        )
+        return self._report(context, outcome)
+
+    def _report(self, context, outcome) -> set:
+        settings = context.scene.contact_edit_retarget
+        settings.last = outcome.summary()
+        self.report({"WARNING"} if outcome.result.warnings else {"INFO"}, settings.last)
+        return {"FINISHED"}
+
+    # ------------------------------------------------------------------ interactive
+
+    @guarded
+    def invoke(self, context, event):
+        if context.area is None or context.window is None:
+            return self.execute(context)
+        self._reader, self._job, self._posed = scene_retarget.prepare(**_inputs(context))
+        self._run = None
+        self._stage = ("read", 0, self._reader.n_frames)
+        self._began = time.monotonic()
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(TICK, window=context.window)
+        self._area = context.area
+        wm.progress_begin(0, 1000)
+        wm.modal_handler_add(self)
+        self._show(context)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        if event.type == "ESC" and event.value == "PRESS":
+            if self._run is None:  # still reading: nothing else started
+                self._reader.restore()
+                return self._end(context, {"CANCELLED"}, "Stopped reading the frames; nothing changed")
+            self._run.stop()
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        try:
+            if self._run is None:
+                self._read(context)
+            else:
+                self._stage = self._run.poll()
+                if self._run.done:
+                    return self._finish(context)
+        except USER_ERRORS as err:
+            if self._run is None:
+                self._reader.restore()
+            return self._end(context, {"CANCELLED"}, str(err), error=True)
+        self._show(context)
+        return {"PASS_THROUGH"}
+
+    def cancel(self, context):
+        """Blender ends the operator (the window closes): the child stops, keeping its frames."""
+        if self._run is not None:
+            self._run.stop(wait=5.0)
+        else:
+            self._reader.restore()
+        self._end(context, {"CANCELLED"})
+
+    def _read(self, context) -> None:
+        """Read frames for :data:`READ_BUDGET` seconds; when all are read, start the child process."""
+        reader, until = self._reader, time.monotonic() + READ_BUDGET
+        while time.monotonic() < until and reader.read_next():
+            pass
+        self._stage = ("read", reader.done, reader.n_frames)
+        if reader.done == reader.n_frames:
+            reader.restore()
+            workers = context.scene.contact_edit_retarget.workers or None
+            self._run = ChildRun(self._job, reader.motion(), workers)
+
+    def _finish(self, context) -> set:
+        try:
+            outcome = self._run.outcome()
+        except Stopped:
+            return self._end(
+                context,
+                {"CANCELLED"},
+                f"Stopped; nothing changed. The frames solved so far are kept in '{self._job.folder}': "
+                "Retarget goes on from them",
+            )
+        except USER_ERRORS as err:
+            return self._end(context, {"CANCELLED"}, f"The retarget failed: {err}", error=True)
+        settings = context.scene.contact_edit_retarget
+        try:
+            scene_retarget.commit(self._job, self._posed, outcome, settings.action_name)
+        except BridgeError as err:
+            return self._end(context, {"CANCELLED"}, str(err), error=True)
+        return self._end(context, self._report(context, outcome))
+
+    def _show(self, context) -> None:
+        stage, done, total = self._stage
+        words = STAGES.get(stage, stage)
+        count = f" {done} of {total}" if total > 1 else ""
+        seconds = time.monotonic() - self._began
+        stopping = self._run is not None and self._run.stopping
+        stop = "stopping…" if stopping else "Esc: stop (solved frames are kept)"
+        self._area.header_text_set(f"Retarget: {words}{count} · {seconds:.0f} s · {stop}")
+        order = list(STAGES)
+        share = (order.index(stage) + (done / total if total else 0.0)) / len(order) if stage in STAGES else 0
+        context.window_manager.progress_update(int(1000 * share))
+
+    def _end(self, context, status: set, message: str = "", error: bool = False) -> set:
+        wm = context.window_manager
+        wm.event_timer_remove(self._timer)
+        wm.progress_end()
+        self._area.header_text_set(None)
+        if message:
+            context.scene.contact_edit_retarget.last = message
+            self.report({"ERROR"} if error else {"INFO"}, message)
+        return status
+
+
+classes = (CONTACT_EDIT_OT_retarget,)

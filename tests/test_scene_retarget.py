@@ -1,0 +1,172 @@
+"""Retargeting inside Blender (contact_edit_addon.scene_retarget) in the real bpy module.
+
+The source: the procedural human hand's armature keyed over 120 frames, holding a mug that it lifts and
+turns (:mod:`tests.held_mug`). The target: the procedural alien hand (three fingers), a second armature
+placed elsewhere, turned and scaled by 1.25 (the hand inside it built at 0.8, so that it is life-size in
+the world), so that the motion must be carried into its space. The result is an
+action on the alien's armature; played back by Blender, its own evaluated skin must meet the mug where
+the transferred contacts say, as near as the retargeting measured and within the CLI's bar (1.5 % of
+the hand's length); a run stopped part way changes nothing, and the next one goes on from its frames.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+
+import numpy as np
+import pytest
+
+from geodesics import SurfacePoints, TriMesh
+from solver import objects
+from solver.hands import make_hand
+
+from .blender import run_blender
+from .held_mug import MUG_HEIGHT, MUG_RADIUS, scene_script
+
+pytestmark = [
+    pytest.mark.skipif(importlib.util.find_spec("bpy") is None, reason="needs bpy (the dev extra)"),
+    pytest.mark.slow,
+]
+
+KEYS = (1, 30, 50, 70, 100, 120)  # held_mug's keys, stretched over 120 frames
+FIRST, LAST = 1, 120
+CHECK = (1, 40, 60, 85, 110, 120)  # frames played back in Blender
+SCALE = 1.25  # the alien armature's (uniform) scale
+BAR = 0.015  # of the target hand's length: tests/test_retarget_pipeline.py's bar
+
+SCRIPT = """
+import os
+import pathlib
+import time
+from contact_edit_addon import scene_retarget
+from mathutils import Matrix, Euler
+alien = hands.make_hand("alien", 1 / {scale})  # life-size in the world, inside the scaled armature
+alien_obj, alien_rig = assets.hand_objects(alien, "Alien", scene.collection)
+alien_rig.matrix_world = Matrix.Translation((0.6, 0.2, 0.0)) @ Euler((0.3, 0.0, 1.2)).to_matrix().to_4x4() @ (
+    Matrix.Scale({scale}, 4))
+
+class Stop(Exception):
+    pass
+
+def stop_after(n):  # stops as Esc does: from the progress callback, after n frames' full poses
+    def progress(stage, done, total):
+        if stage == "full" and done >= n:
+            raise Stop
+    return progress
+
+try:
+    scene_retarget.retarget_scene(scene, hand_obj, mug, alien_obj, {first}, {last}, folder={folder!r},
+                                  workers=2, progress=stop_after(40))
+except Stop:
+    pass
+stopped_action = alien_rig.animation_data is not None and alien_rig.animation_data.action is not None
+full = list(pathlib.Path({folder!r}).glob("*/frames/full/*.npz"))
+kept = {{str(p): p.stat().st_mtime_ns for p in full}}
+calls = []
+def progress(stage, done, total):
+    calls.append((stage, done, total))
+t = time.perf_counter()
+outcome = scene_retarget.retarget_scene(scene, hand_obj, mug, alien_obj, {first}, {last}, folder={folder!r},
+                                        workers=2, progress=progress)
+seconds = time.perf_counter() - t
+current = scene.frame_current
+r = outcome.result
+action = alien_rig.animation_data.action
+frames = keyed_frames(alien_rig)
+out = {{}}
+for f in {check}:
+    out[f"alien_{{f}}"] = blender_world(alien_obj, f)
+    out[f"mug_{{f}}"] = blender_world(mug, f)
+c = r.transferred
+np.savez({arrays!r}, hand_faces=c.hand_contacts.faces, hand_bary=c.hand_contacts.bary,
+         hand_offsets=c.hand_contacts.offsets, object_faces=c.object_contacts.faces,
+         object_bary=c.object_contacts.bary, object_offsets=c.object_contacts.offsets,
+         contact_distance=r.contact_distance, estimate=r.estimate_contact_distance, theta=r.theta, **out)
+stored = list((outcome.folder / "frames" / "full").glob("*.npz"))
+result({{"seconds": seconds, "stages": sorted({{s for s, _, _ in calls}}), "action": action.name,
+         "frames": frames, "scale": outcome.scale, "stopped_action": stopped_action, "kept": len(kept),
+         "stored": len(stored), "resolved": sorted(p for p, t in kept.items() if os.stat(p).st_mtime_ns != t),
+         "summary": outcome.summary(), "current": current, "warnings": list(r.warnings),
+         "full_calls": [d for s, d, _ in calls if s == "full"]}})
+"""
+
+
+@pytest.fixture(scope="module")
+def retargeted(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("scene-retarget")
+    arrays = folder / "arrays.npz"
+    script = SCRIPT.format(
+        scale=SCALE, first=FIRST, last=LAST, check=CHECK, folder=str(folder / "runs"), arrays=str(arrays)
+    )
+    out = run_blender(script, folder, setup=scene_script(KEYS), timeout=1800)
+    out["arrays"] = dict(np.load(arrays))
+    print(f"\nretargeted {LAST - FIRST + 1} frames in {out['seconds']:.1f} s: {out['summary']}")
+    return out
+
+
+def _contacts(arrays, side, frame) -> SurfacePoints:
+    offsets = arrays[f"{side}_offsets"]
+    rows = slice(offsets[frame], offsets[frame + 1])
+    return SurfacePoints(arrays[f"{side}_faces"][rows], arrays[f"{side}_bary"][rows])
+
+
+def test_the_action_keys_every_frame_and_the_scene_is_restored(retargeted):
+    assert retargeted["action"] == "Alien from Hand"
+    assert retargeted["frames"] == list(range(FIRST, LAST + 1))
+    assert {"read", "contacts", "transfer", "root", "full", "refine", "metrics"} <= set(retargeted["stages"])
+    assert retargeted["current"] == 7  # held_mug leaves the scene on frame 7: read and put back
+    assert retargeted["scale"] == pytest.approx(SCALE, rel=1e-6)
+
+
+def test_blender_plays_back_what_was_solved_and_the_contacts_meet_the_mug(retargeted):
+    """Blender's own skin of the alien at the keyed pose: the transferred contacts' mean distance to their
+    object points is what the retargeting measured (in its space, times the armature's scale), and its
+    median over the contact frames is within the bar."""
+    arrays = retargeted["arrays"]
+    alien = make_hand("alien", 1 / SCALE)  # in the armature's space
+    measured = arrays["contact_distance"] * SCALE
+    played = []
+    for f in CHECK:
+        i = f - FIRST
+        hand = _contacts(arrays, "hand", i)
+        if len(hand) == 0:
+            assert np.isnan(measured[i])
+            continue
+        skin = TriMesh(arrays[f"alien_{f}"].astype(np.float64), alien.mesh.faces)
+        mug_world = arrays[f"mug_{f}"].astype(np.float64)
+        obj = _contacts(arrays, "object", i)
+        corners = mug_world[_mug_faces(mug_world)[obj.faces]]
+        O = np.einsum("kj,kjd->kd", obj.bary, corners)
+        gap = np.linalg.norm(hand.positions(skin) - O, axis=1).mean()
+        played.append(gap)
+        assert gap == pytest.approx(measured[i], rel=1e-3, abs=2e-5)  # float32 meshes in Blender
+    assert len(played) >= 4
+    contact = np.nanmedian(measured)
+    bar = BAR * make_hand("alien").length
+    print(f"\nmedian contact distance {contact * 1e3:.2f} mm (bar {bar * 1e3:.2f} mm)")
+    assert contact <= bar
+
+
+def _mug_faces(vertices) -> np.ndarray:
+    mug = objects.mug(radius=MUG_RADIUS, height=MUG_HEIGHT)
+    assert len(vertices) == mug.n_vertices
+    return mug.faces
+
+
+def test_a_stopped_retarget_changes_nothing_and_the_next_goes_on_from_its_frames(retargeted):
+    """Stopped from its progress callback (as Esc stops the operator) after 40 frames' full poses: no
+    action; run again on the same inputs, it solves only the other frames."""
+    assert not retargeted["stopped_action"]
+    assert 40 <= retargeted["kept"] < LAST - FIRST + 1
+    assert retargeted["stored"] == LAST - FIRST + 1
+    assert retargeted["resolved"] == []  # the kept frames were not solved again
+    assert retargeted["full_calls"][0] == retargeted["kept"]  # progress starts from the kept frames
+
+
+def test_summary_says_how_near_and_warns_in_words(retargeted):
+    summary = retargeted["summary"]
+    assert summary.startswith("Retargeted 120 frames; contacts ")
+    for warning in retargeted["warnings"]:
+        assert warning in summary
+    json.dumps(retargeted["warnings"])
