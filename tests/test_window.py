@@ -292,3 +292,35 @@ def test_the_status_bar_says_what_the_device_panel_says(device):
     assert shown[-1] == results["status"]  # the latest device report is the panel's line
     assert results["reports"][-1].startswith("The device poses nothing yet")  # Ctrl+Shift+K, no bindings
     assert results["stopped"].startswith("Stopped")
+
+
+@pytest.fixture(scope="module")
+def retargeting(blender, extension, tmp_path_factory):
+    return session(blender, extension, "retarget", tmp_path_factory)
+
+
+def test_retargeting_keeps_blender_running_esc_keeps_frames_and_again_goes_on(retargeting):
+    """A retarget of the example's grasp onto the alien hand, from the Retarget settings: the operator holds
+    Blender up for a moment at a time only (its invoke reads the rigs; each timer tick reads frames for
+    40 ms or polls the child process), so the event loop runs all along where a synchronous retarget would
+    hold it for the whole minute; Esc stops it with nothing changed but the solved frames kept, and
+    Retarget again solves only the rest and keys the action.
+
+    The 20 ms heartbeat timers wait longer than the operator's calls: Blender redraws the window between
+    ticks by software OpenGL here (a third of a second, measured), and while the child process and its
+    workers start they take both cores."""
+    r = retargeting.results
+    assert r["longest_invoke"][1] < 0.5, r["longest_invoke"]
+    assert r["longest_modal"][1] < 0.15, r["longest_modal"]
+    assert r["modal_calls"] > 50  # the ticks went on while the child worked
+    for phase in ("reading", "stopping", "run"):
+        assert r[phase]["longest_gap"] < 1.0, (phase, r[phase])
+    assert r["stopping"]["seconds"] < 30
+    assert r["after_escape"].startswith("Stopped; nothing changed") and "kept in" in r["after_escape"]
+    assert not r["action_after_escape"]
+    assert len(r["kept"]) >= 2
+    assert r["frame_after_escape"] == 1  # the frames were read and the scene put back where it was
+    assert r["last"].startswith("Retargeted 16 frames; contacts "), r["last"]
+    assert r["resolved"] == []  # the frames kept were not solved again
+    assert r["action"] == "Alien from Hand"
+    assert any("Retargeted 16 frames" in line for line in r["reports"])
