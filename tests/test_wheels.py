@@ -1,8 +1,9 @@
 """The extension as users get it: the built zip installed into Pythons that hold only bpy (Blender 4.2 LTS
 on Python 3.11 with NumPy 1.26, and the newest bpy on Python 3.13), so that its bundled wheels are the
 only copy of our dependencies. A scripted session there paints, transfers and solves without a single
-warning, every dependency imported from the extension's own folder, matplotlib never imported; and that
-Blender's default keymap leaves our hotkeys alone."""
+warning, every dependency imported from the extension's own folder, matplotlib never imported, and
+retargets the solved grasp onto the alien hand in a child process (its workers too import the bundled
+wheels); and that Blender's default keymap leaves our hotkeys alone."""
 
 from __future__ import annotations
 
@@ -54,7 +55,24 @@ from solver.ik import minimize  # as tests/test_solver_ik.py's optimizer failure
 bounds = type("Bounds", (), {"lower": np.full(2, -10.0), "upper": np.full(2, 10.0)})
 failure = minimize(lambda t: (float(t @ t), {}), lambda t: (float(t @ t), {}, np.full(2, np.nan)),
     np.array([1.0, 2.0]), np.arange(2), np.ones(2), bounds, "lbfgs")[4]
+import time
+from bl_ext.user_default.contact_edit import assets, scene_retarget
+from solver.hands import make_hand
+from solver.retarget.job import ChildRun
+alien, alien_rig = assets.hand_objects(make_hand("alien"), "Alien", scene.collection)
+reader, job, posed = scene_retarget.prepare(scene, hand, mug, alien, 1, 6, folder=FOLDER)
+while reader.read_next():
+    pass
+reader.restore()
+run = ChildRun(job, reader.motion(), workers=2)
+began = time.monotonic()
+while not run.done and time.monotonic() - began < 600:
+    run.poll()
+    time.sleep(0.05)
+outcome = run.outcome()
+action, _ = scene_retarget.commit(job, posed, outcome)
 print("RESULT " + json.dumps(dict(
+    retargeted=outcome.summary(), action=action.name, keyed=alien_rig.animation_data.action == action,
     installed=list(installed), painted=list(painted), transferred=list(transferred), solved=list(solved),
     summary=scene.contact_edit.last_solve, failure=failure, modules=modules, numpy=numpy.__version__,
     scipy=scipy.__version__,
@@ -91,7 +109,8 @@ def run(python: Path, code: str, user: Path) -> tuple[dict, str]:
 
 
 def test_the_extension_runs_on_its_bundled_wheels_alone_without_warnings(bpy_python, extension, tmp_path):
-    out, stderr = run(bpy_python, f"ZIP = {str(extension)!r}\n" + textwrap.dedent(SESSION), tmp_path)
+    given = f"ZIP = {str(extension)!r}\nFOLDER = {str(tmp_path / 'retarget')!r}\n"
+    out, stderr = run(bpy_python, given + textwrap.dedent(SESSION), tmp_path)
     assert out["installed"] == ["FINISHED"]
     (site,) = out["site"]
     assert site.startswith(str(tmp_path))
@@ -100,6 +119,8 @@ def test_the_extension_runs_on_its_bundled_wheels_alone_without_warnings(bpy_pyt
     assert out["painted"] == out["transferred"] == out["solved"] == ["FINISHED"]
     assert out["failure"] == "stopped"  # NLopt's generic failure, as its bundled release raises it
     assert "contacts in 1 patch pairs" in out["summary"] and out["summary"].endswith("converged")
+    assert out["retargeted"].startswith("Retargeted 6 frames; contacts "), out["retargeted"]
+    assert out["action"] == "Alien from Hand" and out["keyed"]
     # Every warning Python can raise is shown, hidden ones too; the only ones are DeprecationWarnings
     # (hidden by default) that SWIG before 4.3 puts in NLopt's bindings on Python 3.12+.
     shown = [w for w in out["warnings"] + stderr.splitlines() if "Warning" in w and not SWIG.search(w)]

@@ -232,7 +232,8 @@ def ray_winding(points, signs, direction_frame, vertices, faces, exclude=None) -
     W = V @ R.T  # (n, 3): plane coordinates and depth
     P2, zq = Q @ R[:2].T, Q @ R[2]
     T2 = W[f][:, :, :2]  # (m, 3, 2)
-    g = np.sign(np.cross(T2[:, 1] - T2[:, 0], T2[:, 2] - T2[:, 0]))
+    e1, e2 = T2[:, 1] - T2[:, 0], T2[:, 2] - T2[:, 0]
+    g = np.sign(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])  # NumPy 2 has no cross product of 2-D vectors
     live = np.flatnonzero(g != 0)
 
     # Uniform grid over the plane: pair each query with the triangles whose boxes cover its cell.
