@@ -203,20 +203,23 @@ class VIEW3D_PT_contact_edit_retarget(SubPanel, bpy.types.Panel):
         layout = self.layout
         settings = context.scene.contact_edit_retarget
         column = layout.column(align=True)
-        column.prop(settings, "source", icon="VIEW_PAN")
-        column.prop(settings, "held", icon="MESH_CUBE")
-        column.prop(settings, "target", icon="ARMATURE_DATA")
+        column.prop(settings, "source", text="Source", icon="VIEW_PAN")
+        column.prop(settings, "held", text="Object", icon="MESH_CUBE")
+        column.prop(settings, "target", text="Target", icon="ARMATURE_DATA")
         layout.prop(settings, "use_scene_range")
         if not settings.use_scene_range:
             row = layout.row(align=True)
             row.prop(settings, "frame_start")
             row.prop(settings, "frame_end")
-        layout.prop(settings, "annotation")
         row = layout.row()
         row.prop(settings, "contacts")
         row.prop(settings, "workers")
-        layout.prop(settings, "folder")
-        layout.prop(settings, "action_name")
+        # File paths and names take the sidebar's width, their labels above them.
+        for name, label in (("annotation", "Annotation (empty: built in)"), ("folder", "Frames folder"),
+                            ("action_name", "New action's name")):  # fmt: skip
+            column = layout.column(align=True)
+            column.label(text=label)
+            column.prop(settings, name, text="")
         layout.operator("contact_edit.retarget", icon="ACTION")
         if settings.last:
             draw_message(context, layout, [settings.last], "INFO")

@@ -324,3 +324,4 @@ def test_retargeting_keeps_blender_running_esc_keeps_frames_and_again_goes_on(re
     assert r["resolved"] == []  # the frames kept were not solved again
     assert r["action"] == "Alien from Hand"
     assert any("Retargeted 16 frames" in line for line in r["reports"])
+    assert "panel" in retargeting.shots  # the Retarget panel drawn open, its draw raising nothing
