@@ -556,6 +556,11 @@ def _read_with_trimesh(path: Path, kind: str) -> tuple[np.ndarray, np.ndarray, n
             raise MeshError(f"not a glTF file: its JSON is malformed ({err})") from None
     try:
         scene = trimesh.load_scene(str(path), file_type=kind, process=False)
+    except ModuleNotFoundError as err:  # trimesh reads text that is not UTF-8 with an optional module
+        raise MeshError(
+            f"trimesh cannot read it as {kind.upper()}: it is not complete binary data, and it is not UTF-8 "
+            f"text ('{err.name}', which trimesh would guess its encoding with, is not installed)"
+        ) from err
     except Exception as err:
         raise MeshError(f"trimesh cannot read it as {kind.upper()} ({type(err).__name__}: {err})") from err
     geometry = scene.geometry
