@@ -1,5 +1,6 @@
 """The ``contact-edit`` command."""
 
+import importlib.util
 import re
 
 import pytest
@@ -16,6 +17,7 @@ def test_bench_geodesics_prints_the_table(capsys):
     assert "potpourri3d" in out and "pygeodesic" in out
 
 
+@pytest.mark.skipif(importlib.util.find_spec("bpy") is None, reason="needs bpy (the dev extra)")
 def test_bench_operators_times_every_interactive_operator_on_the_demo_scene(tmp_path):
     """In a fresh process: the benchmark builds the demo scene in the bpy module it imports."""
     from .blender import contact_edit
