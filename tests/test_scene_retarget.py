@@ -7,6 +7,11 @@ the world), so that the motion must be carried into its space. The result is an
 action on the alien's armature; played back by Blender, its own evaluated skin must meet the mug where
 the transferred contacts say, as near as the retargeting measured and within the CLI's bar (1.5 % of
 the hand's length); a run stopped part way changes nothing, and the next one goes on from its frames.
+
+Then the same grasp, 24 frames of it, onto the rig animators pose: a Rigify human whose right hand is the
+procedural human hand (contact_edit_addon.rigify). The action must key only Rigify's controls (the hand's
+IK control, the palm and finger controls), and Blender's own evaluation of the rig, through its IK,
+constraints and B-Bones, must put the contacts where the retargeting measured them.
 """
 
 from __future__ import annotations
@@ -170,3 +175,75 @@ def test_summary_says_how_near_and_warns_in_words(retargeted):
     for warning in retargeted["warnings"]:
         assert warning in summary
     json.dumps(retargeted["warnings"])
+
+
+RIGIFY_KEYS = (1, 8, 12, 16, 20, 24)  # held_mug's keys, squeezed into 24 frames
+RIGIFY_CHECK = (1, 12, 18, 24)
+
+RIGIFY = """
+from contact_edit_addon import rigify, scene_retarget
+from bpy_extras import anim_utils
+target, rig = rigify.rigify_hand(scene.collection)
+outcome = scene_retarget.retarget_scene(scene, hand_obj, mug, target, 1, 24, folder={folder!r}, workers=2)
+data = rig.animation_data
+bag = anim_utils.action_get_channelbag_for_slot(data.action, data.action_slot)
+keyed = sorted({{curve.data_path.split('"')[1] for curve in bag.fcurves}})
+out = {{}}
+for f in {check}:
+    out[f"target_{{f}}"] = blender_world(target, f)
+    out[f"mug_{{f}}"] = blender_world(mug, f)
+r = outcome.result
+c = r.transferred
+np.savez({arrays!r}, hand_faces=c.hand_contacts.faces, hand_bary=c.hand_contacts.bary,
+         hand_offsets=c.hand_contacts.offsets, object_faces=c.object_contacts.faces,
+         object_bary=c.object_contacts.bary, object_offsets=c.object_contacts.offsets,
+         contact_distance=r.contact_distance, **out)
+result({{"keyed": keyed, "bones": [b.name for b in rig.pose.bones], "summary": outcome.summary(),
+         "scale": outcome.scale}})
+"""
+
+
+@pytest.fixture(scope="module")
+def rigify_retargeted(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("scene-retarget-rigify")
+    arrays = folder / "arrays.npz"
+    script = RIGIFY.format(folder=str(folder / "runs"), check=RIGIFY_CHECK, arrays=str(arrays))
+    out = run_blender(script, folder, setup=scene_script(RIGIFY_KEYS), timeout=1800)
+    out["arrays"] = dict(np.load(arrays))
+    print(f"\nonto Rigify: {out['summary']}")
+    return out
+
+
+def test_onto_rigify_the_action_keys_its_controls_only(rigify_retargeted):
+    keyed = rigify_retargeted["keyed"]
+    assert set(keyed) <= set(rigify_retargeted["bones"])
+    assert not [name for name in keyed if name.startswith(("DEF-", "ORG-", "MCH-"))]
+    assert "hand_ik.R" in keyed  # the wrist follows the hand's IK control, as an animator keys it
+    fingers = ("thumb", "f_index", "f_middle", "f_ring", "f_pinky")
+    assert all(any(name.startswith(f) for name in keyed) for f in fingers)
+
+
+def test_blender_plays_the_rigify_action_back_as_solved(rigify_retargeted):
+    """Blender's evaluated Rigify hand at the keyed frames: each frame's transferred contacts lie as far
+    from their mug points as the retargeting measured, to within how closely Blender's iterative IK
+    reaches the hand's IK control (a tenth of a millimetre or so: tests/test_addon_rigify.py), and the
+    median is within the bar."""
+    arrays = rigify_retargeted["arrays"]
+    human = make_hand("human")
+    measured = arrays["contact_distance"] * rigify_retargeted["scale"]
+    played = 0
+    for f in RIGIFY_CHECK:
+        i = f - 1
+        hand = _contacts(arrays, "hand", i)
+        if len(hand) == 0:
+            continue
+        skin = TriMesh(arrays[f"target_{f}"].astype(np.float64), human.mesh.faces)
+        mug_world = arrays[f"mug_{f}"].astype(np.float64)
+        obj = _contacts(arrays, "object", i)
+        O = np.einsum("kj,kjd->kd", obj.bary, mug_world[_mug_faces(mug_world)[obj.faces]])
+        gap = np.linalg.norm(hand.positions(skin) - O, axis=1).mean()
+        print(f"frame {f}: played back {gap * 1e3:.3f} mm, measured {measured[i] * 1e3:.3f} mm")
+        assert abs(gap - measured[i]) < 5e-4
+        played += 1
+    assert played >= 3
+    assert np.nanmedian(measured) <= BAR * human.length
