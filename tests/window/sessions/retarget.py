@@ -118,6 +118,7 @@ def steps(s):
     settings.source, settings.held, settings.target = hand_obj, mug, alien_obj
     settings.workers = 2
     settings.folder = os.path.join(os.environ["CONTACT_EDIT_SESSION"], "retarget")
+    bpy.ops.ed.undo_push(message="Scene set up")  # what this script made is an undo step of its own
     open_by_default(addon("panels").VIEW3D_PT_contact_edit_retarget)
     yield from open_contact_tab(s, view)
     yield from s.move(*view.centre())
@@ -144,7 +145,7 @@ def steps(s):
     began = time.monotonic()
     with view.override():
         bpy.ops.contact_edit.retarget("INVOKE_DEFAULT")
-    s.record("run", (yield from watched(lambda: settings.last.startswith("Retargeted"), timeout=200)))
+    s.record("run", (yield from watched(lambda: settings.last.startswith("Retargeted"), timeout=400)))
     s.record("seconds", time.monotonic() - began)
     s.record("last", settings.last)
     s.record("resolved", sorted(p for p, t in kept.items() if os.stat(p).st_mtime_ns != t))
@@ -163,6 +164,13 @@ def steps(s):
     s.record("longest_invoke", longest(calls, "invoke"))
     s.record("longest_modal", longest(calls, "modal"))
     s.record("modal_calls", sum(call[0] == "modal" for call in calls))
+
+    # Ctrl+Z over the viewport takes the whole retarget back in one step.
+    yield from s.move(*view.centre())
+    yield from s.key("ctrl+z", settle=1.0)
+    rig = bpy.data.objects["Alien rig"]  # undo reloads the data: the old references are gone
+    s.record("undone", rig.animation_data is None or rig.animation_data.action is None)
+    s.record("actions_after_undo", [a.name for a in bpy.data.actions])
 
 
 def _solved(settings):
