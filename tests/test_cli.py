@@ -27,7 +27,8 @@ def test_bench_operators_times_every_interactive_operator_on_the_demo_scene(tmp_
     for task in ("translate the palm", "rotate the palm", "bend the palm", "paint 108 selected vertices",
                  "axis of the index tip (farthest pair", "axis of the index tip (medial",
                  "transfer the index tip", "solve from the open hand: plan, first better pose",
-                 "solve: plan (the main thread's part)"):  # fmt: skip
+                 "solve: plan (the main thread's part)", "retarget: invoke",
+                 "retarget: read a frame"):  # fmt: skip
         (line,) = [line for line in done.stdout.splitlines() if line.startswith(task)]
         assert re.search(r"\d+\.\d ms +100\.0 ms .* goal; longest \d+\.\d ms", line), line
 
