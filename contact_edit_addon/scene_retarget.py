@@ -100,7 +100,8 @@ def prepare(
         try:
             annotation = HandPairAnnotation.load(path, reader.hand_rest, target_mesh)
         except SolverError as err:
-            raise BridgeError(f"{err}") from err
+            text = str(err) if str(path) in str(err) else f"the annotation file {path}: {err}"
+            raise BridgeError(f"{text} (retargeting '{source.name}' onto '{target.name}')") from err
         points = SurfacePoints.concatenate(
             [c.target_start for c in annotation.curves if not c.dropped]
             + [m.target for m in annotation.markers]

@@ -247,3 +247,54 @@ def test_blender_plays_the_rigify_action_back_as_solved(rigify_retargeted):
         played += 1
     assert played >= 3
     assert np.nanmedian(measured) <= BAR * human.length
+
+
+ANNOTATION_FILES = """
+import json
+from contact_edit_addon import bridge, scene_retarget
+from contact_edit_addon.bridge import BridgeError
+from solver.retarget.annotate import default_annotation, procedural_hand
+alien_obj, _ = assets.hand_objects(hands.make_hand("alien"), "Alien", scene.collection)
+witch_obj, _ = assets.hand_objects(hands.make_hand("witch"), "Witch", scene.collection)
+bpy.ops.mesh.primitive_uv_sphere_add(radius=0.05)
+sphere = bpy.context.object
+reader = scene_retarget.prepare(scene, hand_obj, mug, alien_obj, 1, 6, folder={folder!r})[0]
+source = procedural_hand(reader.hand_rest)
+
+def written(target_obj, name):
+    path = {folder!r} + "/" + name
+    default_annotation(source, procedural_hand(bridge.trimesh(target_obj))).save(path)
+    return path
+
+def message(target_obj, path):
+    try:
+        job = scene_retarget.prepare(scene, hand_obj, mug, target_obj, 1, 6, annotation_path=path,
+                                     folder={folder!r})[1]
+    except BridgeError as err:
+        return str(err)
+    return job.annotation.to_dict()
+
+for_alien, for_witch = written(alien_obj, "alien.json"), written(witch_obj, "witch.json")
+broken = {folder!r} + "/broken.json"
+with open(broken, "w") as out:
+    out.write(open(for_alien).read()[:500])
+result({{"read": message(alien_obj, for_alien) == json.load(open(for_alien)),
+         "other_hands": message(alien_obj, for_witch), "broken": message(alien_obj, broken),
+         "missing": message(alien_obj, {folder!r} + "/none.json"), "not_procedural": message(sphere, "")}})
+"""
+
+
+def test_an_annotation_file_is_read_and_bad_ones_are_named(tmp_path):
+    """Hands other than the procedural ones retarget with an annotation.json (the CLI writes one): the
+    Retarget inputs read it for the scene's hands, and refuse, saying why, a file made for other hands,
+    a missing or broken one, and no file for a hand that has no built-in annotation."""
+    script = ANNOTATION_FILES.format(folder=str(tmp_path))
+    out = run_blender(script, tmp_path, setup=scene_script(KEYS), timeout=600)
+    print("\n".join(str(out[k]) for k in ("other_hands", "missing", "broken", "not_procedural")))
+    assert out["read"] is True  # the job carries the file's annotation, unchanged
+    assert "witch.json" in out["other_hands"] and "made for another hand" in out["other_hands"]
+    assert out["other_hands"].endswith("(retargeting 'Hand' onto 'Alien')")
+    assert "none.json" in out["missing"]
+    assert "broken.json" in out["broken"]
+    assert "'Sphere' is not one of the procedural hands" in out["not_procedural"]
+    assert "annotation file made for these two hands" in out["not_procedural"]
