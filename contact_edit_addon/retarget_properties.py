@@ -42,8 +42,8 @@ class CONTACT_EDIT_PG_retarget(bpy.types.PropertyGroup):
         name="Annotation",
         subtype="FILE_PATH",
         description=(
-            "An annotation.json made for these two hands (contact-edit retarget writes one). Empty: the "
-            "built-in annotation, for the procedural hands of Add > Contact Edit"
+            "An annotation.json made for these two hands (the format contact-edit retarget writes). "
+            "Empty: the built-in annotation, for the procedural hands of Add > Contact Edit"
         ),
     )
     contacts: bpy.props.BoolProperty(

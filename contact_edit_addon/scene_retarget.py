@@ -20,7 +20,7 @@ parts, so that an operator keeps Blender responsive:
 The pipeline works in the target armature's space: the world-space motion is carried there by the inverse
 of the armature's world matrix (a rotation, a translation and a uniform scale, the only scale the solve
 accepts). The annotation, which names points on both hands' surfaces, is read from an ``annotation.json``
-(``contact-edit retarget`` writes one) or, for the procedural hands the add-on makes (*Add › Contact
+(in the format ``contact-edit retarget`` writes) or, for the procedural hands the add-on makes (*Add › Contact
 Edit*), built in (:func:`solver.retarget.annotate.procedural_hand`).
 """
 
@@ -115,7 +115,7 @@ def prepare(
                 raise BridgeError(
                     f"the {role} hand '{name}' is not one of the procedural hands (Add > Contact Edit), "
                     "which have an annotation built in: give an annotation file made for these two hands "
-                    "(contact-edit retarget writes one, annotation.json)",
+                    "(annotation.json, as contact-edit retarget writes them)",
                     name,
                 )
         points = None
