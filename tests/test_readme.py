@@ -32,6 +32,7 @@ RUN_BY = {
     ("Batch posing", "sh", 0): "test_the_pose_line_poses_the_demo_scene",
     ("Batch posing", "sh", 1): "test_the_blender_background_line_runs_in_a_real_blender",
     ("Retargeting motions", "sh", 0): "test_the_retargeting_lines_run_as_written",
+    ("Retargeting motions", "sh", 1): "test_the_blender_retarget_line_runs_in_a_real_blender",
     ("Retargeting motions", "python", 0): "test_the_retargeting_python_runs_as_a_script",
     ("Files from elsewhere", "sh", 0): "test_files_from_elsewhere_import_grab_line_runs_as_written",
     ("Files from elsewhere", "python", 0): "test_files_from_elsewhere_python_runs_as_written",
@@ -142,23 +143,11 @@ def test_the_blender_background_line_runs_in_a_real_blender(demo, tmp_path):
     chroot) with the built extension installed as a user installs it: it poses the demo scene at frame
     12 into posed.blend, a copy, and keys the frame. (The README says 5.0 or newer: Debian 13's Blender
     4.3 cannot open a file Blender 5.0 saved, "incomplete header, may be from a newer version".)"""
-    from contact_edit_addon import build
-
-    from .window import harness
-
-    try:
-        blender = harness.WindowBlender.find("sid")
-    except RuntimeError as err:
-        pytest.skip(str(err))
+    blender, work, env = _blender_with_the_demo(demo, tmp_path)
     (line,) = readme.block("Batch posing", "sh", 1).lines()
     assert line.startswith("blender --background demo/demo.blend --python-expr ")
-    zip_path = build.build_extension(tmp_path / "dist", platforms=["linux-x64"])[0]
-    user = blender._user_folder(zip_path)
-    work = user / "work"
-    shutil.copytree(demo[0], work / "demo")
     (work / "keyed.py").write_text(KEYED)
     inside = "/" + work.relative_to(blender.root).as_posix()
-    env = f"BLENDER_USER_RESOURCES=/{(user / 'user').relative_to(blender.root).as_posix()}"
     try:
         posed = blender.run("bash", "-c", f"cd {inside} && env {env} {line}", timeout=600)
         assert posed.returncode == 0, posed.stdout + posed.stderr
@@ -169,6 +158,62 @@ def test_the_blender_background_line_runs_in_a_real_blender(demo, tmp_path):
         found = dict(re.findall(r"^(KEYED|SOLVE) (.*)$", check.stdout, re.MULTILINE))
         assert json.loads(found["KEYED"]) == [1.0, 12.0, 24.0], check.stdout + check.stderr
         assert "patches touch 'Mug'" in found["SOLVE"]
+    finally:
+        blender.cleanup()
+
+
+def _blender_with_the_demo(demo, tmp_path):
+    """Debian's Blender 5.2 (in a chroot) with the built extension installed as a user installs it, and a
+    work folder holding the demo's folder: (the Blender, the folder, the environment setting that
+    points Blender at its user folder)."""
+    from contact_edit_addon import build
+
+    from .window import harness
+
+    try:
+        blender = harness.WindowBlender.find("sid")
+    except RuntimeError as err:
+        pytest.skip(str(err))
+    zip_path = build.build_extension(tmp_path / "dist", platforms=["linux-x64"])[0]
+    user = blender._user_folder(zip_path)
+    work = user / "work"
+    shutil.copytree(demo[0], work / "demo")
+    return blender, work, f"BLENDER_USER_RESOURCES=/{(user / 'user').relative_to(blender.root).as_posix()}"
+
+
+RETARGETED = """
+import bpy, json
+from bpy_extras import anim_utils
+data = bpy.data.objects["Alien rig"].animation_data
+curves = anim_utils.action_get_channelbag_for_slot(data.action, data.action_slot).fcurves
+print("KEYED " + json.dumps(sorted({k.co[0] for c in curves for k in c.keyframe_points})))
+print("ACTION " + data.action.name)
+"""
+
+
+@pytest.mark.slow
+def test_the_blender_retarget_line_runs_in_a_real_blender(demo, tmp_path):
+    """The README's retarget line, run as written by Blender 5.2 with the extension installed: it adds an
+    alien hand to the demo scene, retargets the demo's grasp onto it in background mode (the frames
+    solved in worker processes Blender starts), prints the summary and saves a copy whose alien armature
+    has the action, keyed on every frame."""
+    blender, work, env = _blender_with_the_demo(demo, tmp_path)
+    (line,) = readme.block("Retargeting motions", "sh", 1).lines()
+    assert line.startswith("blender --background demo/demo.blend --python-expr ")
+    (work / "retargeted.py").write_text(RETARGETED)
+    inside = "/" + work.relative_to(blender.root).as_posix()
+    try:
+        done = blender.run("bash", "-c", f"cd {inside} && env {env} {line}", timeout=900)
+        assert done.returncode == 0, done.stdout + done.stderr
+        assert re.search(r"^Retargeted 24 frames; contacts \d", done.stdout, re.MULTILINE), done.stdout
+        check = blender.run(
+            "bash",
+            "-c",
+            f"cd {inside} && env {env} blender --background retargeted.blend --python retargeted.py",
+        )
+        found = dict(re.findall(r"^(KEYED|ACTION) (.*)$", check.stdout, re.MULTILINE))
+        assert json.loads(found["KEYED"]) == [float(f) for f in range(1, 25)], check.stdout + check.stderr
+        assert found["ACTION"] == "Alien from Hand"
     finally:
         blender.cleanup()
 
