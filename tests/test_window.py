@@ -316,6 +316,7 @@ def test_retargeting_keeps_blender_running_esc_keeps_frames_and_again_goes_on(re
     for phase in ("reading", "stopping", "run"):
         assert r[phase]["longest_gap"] < 1.0, (phase, r[phase])
     assert r["stopping"]["seconds"] < 30
+    assert "A retarget is running: wait for it, or press Esc to stop it" in r["second"]  # one at a time
     assert r["after_escape"].startswith("Stopped; nothing changed") and "kept in" in r["after_escape"]
     assert not r["action_after_escape"]
     assert len(r["kept"]) >= 2

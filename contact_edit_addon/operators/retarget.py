@@ -38,6 +38,15 @@ STAGES = {
 }
 
 
+def why_not_now(context) -> str | None:
+    """One retarget at a time: a second would step the timeline while the first reads it, and compete with
+    it for the cores."""
+    running = (op for window in context.window_manager.windows for op in window.modal_operators)
+    if any(op.bl_idname in ("contact_edit.retarget", "CONTACT_EDIT_OT_retarget") for op in running):
+        return "A retarget is running: wait for it, or press Esc to stop it"
+    return need_hands(context)
+
+
 def need_hands(context) -> str | None:
     settings = context.scene.contact_edit_retarget
     chosen = (("source hand", settings.source), ("object", settings.held), ("target hand", settings.target))
@@ -72,7 +81,7 @@ class CONTACT_EDIT_OT_retarget(ExplainedPoll, bpy.types.Operator):
     bl_label = "Retarget"
     bl_options = {"REGISTER", "UNDO"}
 
-    why_not = staticmethod(need_hands)
+    why_not = staticmethod(why_not_now)
 
     @guarded
     def execute(self, context):

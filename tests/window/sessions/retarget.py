@@ -129,6 +129,12 @@ def steps(s):
         bpy.ops.contact_edit.retarget("INVOKE_DEFAULT")
     reading = yield from until(retarget_running, timeout=30)
     s.record("reading", reading)
+    try:  # a second Retarget while the first runs
+        with view.override():
+            bpy.ops.contact_edit.retarget("INVOKE_DEFAULT")
+        s.record("second", "started")
+    except RuntimeError as err:
+        s.record("second", str(err))
     yield from until(lambda: len(list(_solved(settings))) >= 2, timeout=120)
     yield from s.shot("retargeting", settle=0.1)
     yield from s.key("Escape", settle=0.0)
