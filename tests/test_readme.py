@@ -143,18 +143,15 @@ def test_the_blender_background_line_runs_in_a_real_blender(demo, tmp_path):
     chroot) with the built extension installed as a user installs it: it poses the demo scene at frame
     12 into posed.blend, a copy, and keys the frame. (The README says 5.0 or newer: Debian 13's Blender
     4.3 cannot open a file Blender 5.0 saved, "incomplete header, may be from a newer version".)"""
-    blender, work, env = _blender_with_the_demo(demo, tmp_path)
+    blender, work, run = _blender_with_the_demo(demo, tmp_path)
     (line,) = readme.block("Batch posing", "sh", 1).lines()
     assert line.startswith("blender --background demo/demo.blend --python-expr ")
     (work / "keyed.py").write_text(KEYED)
-    inside = "/" + work.relative_to(blender.root).as_posix()
     try:
-        posed = blender.run("bash", "-c", f"cd {inside} && env {env} {line}", timeout=600)
+        posed = run(line, timeout=600)
         assert posed.returncode == 0, posed.stdout + posed.stderr
         assert (work / "posed.blend").exists(), posed.stdout
-        check = blender.run(
-            "bash", "-c", f"cd {inside} && env {env} blender --background posed.blend --python keyed.py"
-        )
+        check = run("blender --background posed.blend --python keyed.py")
         found = dict(re.findall(r"^(KEYED|SOLVE) (.*)$", check.stdout, re.MULTILINE))
         assert json.loads(found["KEYED"]) == [1.0, 12.0, 24.0], check.stdout + check.stderr
         assert "patches touch 'Mug'" in found["SOLVE"]
@@ -164,8 +161,8 @@ def test_the_blender_background_line_runs_in_a_real_blender(demo, tmp_path):
 
 def _blender_with_the_demo(demo, tmp_path):
     """Debian's Blender 5.2 (in a chroot) with the built extension installed as a user installs it, and a
-    work folder holding the demo's folder: (the Blender, the folder, the environment setting that
-    points Blender at its user folder)."""
+    work folder holding the demo's folder: (the Blender, the folder, ``run(command, timeout=120)``, which
+    runs a shell command there with Blender pointed at its user folder)."""
     from contact_edit_addon import build
 
     from .window import harness
@@ -178,7 +175,13 @@ def _blender_with_the_demo(demo, tmp_path):
     user = blender._user_folder(zip_path)
     work = user / "work"
     shutil.copytree(demo[0], work / "demo")
-    return blender, work, f"BLENDER_USER_RESOURCES=/{(user / 'user').relative_to(blender.root).as_posix()}"
+    inside = "/" + work.relative_to(blender.root).as_posix()
+    env = f"BLENDER_USER_RESOURCES=/{(user / 'user').relative_to(blender.root).as_posix()}"
+
+    def run(command: str, timeout: float = 120):
+        return blender.run("bash", "-c", f"cd {inside} && env {env} {command}", timeout=timeout)
+
+    return blender, work, run
 
 
 RETARGETED = """
@@ -197,20 +200,15 @@ def test_the_blender_retarget_line_runs_in_a_real_blender(demo, tmp_path):
     alien hand to the demo scene, retargets the demo's grasp onto it in background mode (the frames
     solved in worker processes Blender starts), prints the summary and saves a copy whose alien armature
     has the action, keyed on every frame."""
-    blender, work, env = _blender_with_the_demo(demo, tmp_path)
+    blender, work, run = _blender_with_the_demo(demo, tmp_path)
     (line,) = readme.block("Retargeting motions", "sh", 1).lines()
     assert line.startswith("blender --background demo/demo.blend --python-expr ")
     (work / "retargeted.py").write_text(RETARGETED)
-    inside = "/" + work.relative_to(blender.root).as_posix()
     try:
-        done = blender.run("bash", "-c", f"cd {inside} && env {env} {line}", timeout=900)
+        done = run(line, timeout=900)
         assert done.returncode == 0, done.stdout + done.stderr
         assert re.search(r"^Retargeted 24 frames; contacts \d", done.stdout, re.MULTILINE), done.stdout
-        check = blender.run(
-            "bash",
-            "-c",
-            f"cd {inside} && env {env} blender --background retargeted.blend --python retargeted.py",
-        )
+        check = run("blender --background retargeted.blend --python retargeted.py")
         found = dict(re.findall(r"^(KEYED|ACTION) (.*)$", check.stdout, re.MULTILINE))
         assert json.loads(found["KEYED"]) == [float(f) for f in range(1, 25)], check.stdout + check.stderr
         assert found["ACTION"] == "Alien from Hand"
