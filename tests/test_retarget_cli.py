@@ -84,6 +84,23 @@ def test_running_again_resumes_without_solving(retargeted):
     assert changed == ["000007.npz"]  # only the missing frame was solved
 
 
+def test_an_annotation_drawn_to_match_the_default_retargets_the_same(retargeted, tmp_path):
+    """Issue 18: patches drawn on both hands to match the built-in annotation, saved and read by
+    ``--annotation``, give the built-in annotation's retarget, to the bit."""
+    from solver.retarget import annotate
+
+    from .test_retarget_drawn import drawn_to_match
+
+    out, args = retargeted
+    human, alien = make_hand("human"), make_hand("alien")
+    drawn_to_match(human, alien, annotate.default_annotation(human, alien)).save(tmp_path / "drawn.json")
+    again = tmp_path / "drawn"
+    args = [*args[: args.index("-o") + 1], str(again), *args[args.index("-o") + 2 :]]
+    assert main([*args, "--annotation", str(tmp_path / "drawn.json"), "--no-refine", "--control", "8"]) == 0
+    with np.load(out / "curves.npz") as default, np.load(again / "curves.npz") as drawn:
+        np.testing.assert_array_equal(drawn["theta"], default["theta"])
+
+
 def test_the_plot_gets_the_commands_title(retargeted, motion_file, monkeypatch):
     """metrics.png is drawn by save_result with the title the command gives it (a resumed run)."""
     pytest.importorskip("matplotlib")
