@@ -81,7 +81,8 @@ def test_drawn_to_match_the_default_it_is_the_default(human, alien, default):
 
 def test_the_scales_of_a_hand_drawn_again_at_another_size_are_that_size(human):
     """The same strips on the same hand at 0.75 times the size: every axis is 0.75 times as long and every
-    strip 0.75 times as wide, so λ_A = λ_S = 0.75 (to the exact solver's rounding)."""
+    strip 0.75 times as wide, so λ_A = λ_S = 0.75 (to the exact solver's rounding); the same spots on
+    both are an area marker."""
     small = make_hand("human", 0.75)
     big_set = _drawn(human, {})
     small_set = ContactSet(
@@ -91,7 +92,12 @@ def test_the_scales_of_a_hand_drawn_again_at_another_size_are_that_size(human):
             for name, p in big_set.patches.items()
         },
     )
-    got = annotation_from_patches(big_set, small_set)
+    spots = big_set["index"].points  # the same skin spots on both: an area marker, row for row
+    big_set = big_set.add("spots", ContactPatch(human.mesh, spots, big_set["index"].axis))
+    small_set = small_set.add("spots", ContactPatch(small.mesh, spots, small_set["index"].axis))
+    got = annotation_from_patches(big_set, small_set, markers=["spots"])
+    assert got.markers[0].kind == "area"
+    np.testing.assert_array_equal(got.markers[0].target.faces, spots.faces)
     for c in got.curves:
         assert c.axis_scale == pytest.approx(0.75, rel=1e-6), c.name
         assert c.radial_scale == pytest.approx(0.75, rel=1e-6), c.name
@@ -104,7 +110,7 @@ def test_markers_pair_as_the_papers_kinds(human, alien, drawn):
     t_axis = target["middle"].axis
     area = source["index"].points  # a painted area
     cases = {
-        "area": (area, SurfacePoints(area.faces[::-1].copy(), area.bary[::-1].copy())),
+        "as many": (area, SurfacePoints(area.faces[::-1].copy(), area.bary[::-1].copy())),
         "single": (area[[0]], SurfacePoints.from_vertices(alien.mesh, [7])),
         "many-to-one": (area[[0]], target["index"].points),
         "sizes differ": (area, target["index"].points[:5]),
@@ -121,9 +127,10 @@ def test_markers_pair_as_the_papers_kinds(human, alien, drawn):
         {"palm": target["palm"], **{k: ContactPatch(alien.mesh, t, t_axis) for k, (_, t) in cases.items()}},
     )
     got = {m.name: m for m in annotation_from_patches(src, tgt, markers=cases).markers}
-    assert {n: m.kind for n, m in got.items()} == {
-        "area": "area", "single": "single", "many-to-one": "many-to-one", "sizes differ": "many-to-one"
-    }  # fmt: skip
+    kinds = {n: m.kind for n, m in got.items()}
+    assert kinds == {"as many": "many-to-one", "single": "single", "many-to-one": "many-to-one"} | {
+        "sizes differ": "many-to-one"
+    }
     # Areas of different sizes: the source point nearest the centroid, tracked by the whole target area.
     P = area.positions(human.mesh)
     nearest = np.argmin(np.linalg.norm(P - P.mean(0), axis=1))

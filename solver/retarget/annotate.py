@@ -170,7 +170,7 @@ def hand_markers(hand: Hand) -> dict[str, SurfacePoints]:
     return out
 
 
-def _area(hand: Hand, centre: SurfacePoints, radius: float, seed: int) -> SurfacePoints:
+def area_marker(hand: Hand, centre: SurfacePoints, radius: float, seed: int) -> SurfacePoints:
     """An area marker: :data:`MARKER_POINTS` area-uniform samples (seeded) of the faces within ``radius``
     of a marker centre whose normals face its way."""
     mesh = hand.mesh
@@ -260,7 +260,7 @@ def default_annotation(
         other = chain_map.get(prefix)
         if other is None or f"{other}_{label}" not in tgt_markers:
             continue
-        tgt_area = _area(target, tgt_markers[f"{other}_{label}"], radius, seed=len(markers))
+        tgt_area = area_marker(target, tgt_markers[f"{other}_{label}"], radius, seed=len(markers))
         if same and other == prefix:  # the same skin spots on the source (up to the hands' scales)
             spots = tgt_area.positions(target.mesh) * (source.length / target.length)
             src = SurfacePoints.nearest(source.mesh, spots)

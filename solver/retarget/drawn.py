@@ -11,10 +11,11 @@ one per hand, into the :class:`.annotations.HandPairAnnotation` that the retarge
   way; λ_A is the ratio of the two axes' lengths and λ_S the ratio of the two strips' half-widths (the
   mean distance of a patch's points from its axis), unless given. A source curve without a counterpart
   is dropped (its contacts go to the nearest remaining landmark, within ε_g);
-* a marker pairs the same way: a painted area on each hand is an area marker when the two have as many
-  points (row for row), a single point on the source against an area on the target is the paper's
-  many-to-one marker, and two areas of different sizes become one: the source area's point nearest its
-  centroid, tracked by every point of the target area.
+* a marker pairs the same way. One point on each hand is a single marker. Otherwise it is the paper's
+  many-to-one marker: the source's point (of an area, the one nearest its centroid) tracked by every
+  point of the target's area. Only on two hands of the same mesh (a hand and its copy at another scale)
+  are two areas of as many points an area marker, matched row for row: points painted on two different
+  hands have no row-for-row correspondence.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 
-from geodesics import ContactPatch, ContactSet, SurfacePoints
+from geodesics import ContactPatch, ContactSet
 
 from .annotate import THRESHOLD_PER_LENGTH
 from .annotate import procedural_kind as _procedural_kind
@@ -61,6 +62,7 @@ def annotation_from_patches(
         width: paint it, or give λ_S), no curve with a counterpart.
     """
     markers, pairs, scales = set(markers), dict(pairs or {}), dict(scales or {})
+    same_mesh = source.mesh.topology_hash == target.mesh.topology_hash
     curves, marker_list = [], []
     for name in source:
         other = pairs.get(name, name)
@@ -73,7 +75,7 @@ def annotation_from_patches(
         patch = source[name]
         if name in markers:
             if counterpart is not None:
-                marker_list.append(MarkerAnnotation(name, *_marker_points(patch, counterpart)))
+                marker_list.append(MarkerAnnotation(name, *_marker_points(patch, counterpart, same_mesh)))
         elif counterpart is None:
             curves.append(CurveAnnotation(name, patch.axis.points))
         else:
@@ -124,9 +126,9 @@ def _ratio(target: float, source: float, name: str) -> float:
     return target / source
 
 
-def _marker_points(source: ContactPatch, target: ContactPatch) -> tuple[SurfacePoints, SurfacePoints]:
+def _marker_points(source: ContactPatch, target: ContactPatch, same_mesh: bool):
     s, t = len(source), len(target)
-    if s == t or s == 1 or t == 1:
+    if (s == t and same_mesh) or s == 1:
         return source.points, target.points
     P = source.positions()
     return source.points[[int(np.argmin(np.linalg.norm(P - P.mean(0), axis=1)))]], target.points
