@@ -90,7 +90,7 @@ def run(out: Path, render: bool = True, progress: Callable[[str], None] = lambda
         bpy.ops.contact_edit.transfer(patch=name, location=location, direction=direction, hierarchy=False)
 
     progress("solving the grasp from the open hand")
-    posed = bridge.posed_hand(hand_obj, store.load(hand_obj).mesh.faces)
+    posed = bridge.posed_hand(hand_obj, store.load(hand_obj, layer="CONTACTS").mesh.faces)
     scene.frame_set(OPEN_FRAME)
     bridge.apply_pose(posed, posed.rig.rest, OPEN_FRAME)
     scene.frame_set(GRASP_FRAME)
@@ -108,7 +108,7 @@ def run(out: Path, render: bool = True, progress: Callable[[str], None] = lambda
         _render(scene, [hand_obj, mug], image)
     blend = out / "demo.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), check_existing=False)
-    hand_set = store.load(hand_obj)
+    hand_set = store.load(hand_obj, layer="CONTACTS")
     return DemoResult(
         blend=blend,
         image=image,
@@ -137,7 +137,7 @@ def _pad_centre(hand, bone: str) -> int:
 def _landing(hand_obj, armature) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """For each hand pad the wrapped hand brings near the mug: where its axis starts (world) and the
     world direction it leaves in."""
-    contacts = store.load(hand_obj)
+    contacts = store.load(hand_obj, layer="CONTACTS")
     posed = bridge.posed_hand(hand_obj, contacts.mesh.faces)
     theta = posed.start
     mug = bpy.context.scene.contact_edit.target

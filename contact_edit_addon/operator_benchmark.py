@@ -112,12 +112,13 @@ def run(repeat: int = 7, progress: Callable[[str], None] | None = None) -> list[
     scene = bpy.context.scene
     hand = scene.contact_edit.hand
     bpy.context.view_layer.objects.active = hand
-    contacts = store.load(hand)
+    contacts = store.load(hand, layer="CONTACTS")
     palm, tip = "palm", "index tip"
     n_palm = len(contacts[palm])
     start = tuple(contacts[tip].axis.start.positions(contacts.mesh)[0])
     mug, copies = scene.contact_edit.target, itertools.count()
-    landed = store.load(mug)[tip].axis.start.positions(store.load(mug).mesh)
+    landed = store.load(mug, layer="CONTACTS")
+    landed = landed[tip].axis.start.positions(landed.mesh)
     onto = tuple(np.array(mug.matrix_world) @ np.r_[landed[0], 1.0])[:3]
     near_tip = np.linalg.norm(contacts.mesh.vertices - contacts[tip].positions().mean(0), axis=1) < PAINTED
     hand.data.vertices.foreach_set("select", near_tip)

@@ -20,7 +20,7 @@ import bmesh
 import bpy
 import numpy as np
 
-from . import bridge
+from . import bridge, store
 
 #: Screen pixels the overlay floats above the surface: points lowest, the axis over them, its markers on top.
 POINT_LIFT, AXIS_LIFT, MARKER_LIFT = 1.5, 3.0, 4.5
@@ -92,7 +92,7 @@ def shaders() -> dict:
 
 def _stored_patches(obj) -> list[tuple]:
     """(name, point faces, point bary, axis faces, axis bary) per patch, parsed once per data change."""
-    text = obj.contact_edit.data
+    text = store.text(obj)
     key = f"{obj.name}:{hash(text)}"
     if key not in _parsed:
         patches = json.loads(text).get("patches", []) if text else []
@@ -113,8 +113,8 @@ def _stored_patches(obj) -> list[tuple]:
 
 def _patches(obj) -> tuple[list[tuple], dict, tuple]:
     """What to draw for ``obj``: its patches (stored, or a preview's), their colours, and loose points."""
-    colors = {e.name: tuple(e.color) for e in obj.contact_edit.patches}
-    hidden = {e.name for e in obj.contact_edit.patches if not e.visible}
+    colors = {e.name: tuple(e.color) for e in store.entries(obj)}
+    hidden = {e.name for e in store.entries(obj) if not e.visible}
     shown = _previews.get(obj.name, Preview())
     if shown.contacts is None:
         patches = _stored_patches(obj)
@@ -198,7 +198,7 @@ def draw_view() -> None:
     gpu.state.depth_test_set("LESS_EQUAL")
     gpu.state.blend_set("ALPHA")
     for obj in context.visible_objects:
-        if obj.type != "MESH" or not (obj.contact_edit.patches or obj.name in _previews):
+        if obj.type != "MESH" or not (store.entries(obj) or obj.name in _previews):
             continue
         try:
             triangles = bridge.trimesh(obj).faces

@@ -5,7 +5,7 @@ default width; long messages (the last solve) are split into one line per clause
 import blf
 import bpy
 
-from . import posing
+from . import annotation, posing, store
 
 
 class CONTACT_EDIT_UL_patches(bpy.types.UIList):
@@ -17,7 +17,7 @@ class CONTACT_EDIT_UL_patches(bpy.types.UIList):
         swatch.ui_units_x = 1.2  # a swatch, so that the name has the room
         swatch.prop(item, "color", text="")
         row.prop(item, "name", text="", emboss=False)
-        detail = f"{item.points}"
+        detail = f"{item.points}" + (" · marker" if item.marker else "")
         if item.parent:
             detail += f" · in {item.parent}"
         if item.pair:
@@ -96,9 +96,21 @@ class VIEW3D_PT_contact_edit_patches(SubPanel, bpy.types.Panel):
             layout.label(text="Select a mesh", icon="INFO")
             return
         layout.label(text=obj.name, icon="MESH_DATA")
+        if _may_have_annotation(context, obj):
+            layout.row().prop(obj.contact_edit, "layer", expand=True)
+        _, listed, active = store.LAYERS[obj.contact_edit.layer]
         layout.template_list(
-            "CONTACT_EDIT_UL_patches", "", obj.contact_edit, "patches", obj.contact_edit, "active", rows=3
+            "CONTACT_EDIT_UL_patches", "", obj.contact_edit, listed, obj.contact_edit, active, rows=3
         )
+        if obj.contact_edit.layer == "ANNOTATION" and store.entries(obj):
+            entry = store.entries(obj)[min(store.active_index(obj), len(store.entries(obj)) - 1)]
+            row = layout.row(align=True)
+            row.prop(entry, "marker", toggle=True)
+            if not entry.marker:
+                row.prop(entry, "girth")
+                row = layout.row(align=True)
+                row.prop(entry, "axis_scale")
+                row.prop(entry, "radial_scale")
         column = layout.column(align=True)
         row = column.row(align=True)
         row.operator("contact_edit.paint", text="Brush", icon="BRUSH_DATA").source = "STROKE"
@@ -113,6 +125,16 @@ class VIEW3D_PT_contact_edit_patches(SubPanel, bpy.types.Panel):
         row = column.row(align=True)
         row.operator("contact_edit.mirror_contacts", text="Mirror", icon="MOD_MIRROR")
         row.operator("contact_edit.clear", text="Remove", icon="X")
+
+
+def _may_have_annotation(context, obj) -> bool:
+    """Whether ``obj`` is a hand that a retarget could read an annotation from."""
+    settings = context.scene.contact_edit_retarget
+    return (
+        obj in (settings.source, settings.target)
+        or annotation.has_annotation(obj)
+        or any(m.type == "ARMATURE" for m in obj.modifiers)
+    )
 
 
 class VIEW3D_PT_contact_edit_brush(SubPanel, bpy.types.Panel):
@@ -215,14 +237,42 @@ class VIEW3D_PT_contact_edit_retarget(SubPanel, bpy.types.Panel):
         row.prop(settings, "contacts")
         row.prop(settings, "workers")
         # File paths and names take the sidebar's width, their labels above them.
-        for name, label in (("annotation", "Annotation (empty: built in)"), ("folder", "Frames folder"),
-                            ("action_name", "New action's name")):  # fmt: skip
+        for name, label in (("annotation", "Annotation file (empty: the hands')"),
+                            ("folder", "Frames folder"), ("action_name", "New action's name")):  # fmt: skip
             column = layout.column(align=True)
             column.label(text=label)
             column.prop(settings, name, text="")
         layout.operator("contact_edit.retarget", icon="ACTION")
         if settings.last:
             draw_message(context, layout, [settings.last], "INFO")
+
+
+class VIEW3D_PT_contact_edit_annotation(SubPanel, bpy.types.Panel):
+    """The two hands' annotations: curves and markers that say how one hand's contacts land on the other."""
+
+    bl_label = "Annotation"
+    bl_parent_id = "VIEW3D_PT_contact_edit_retarget"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = self.layout
+        settings = context.scene.contact_edit_retarget
+        for role, obj in (("Source", settings.source), ("Target", settings.target)):
+            if obj is None:
+                continue
+            listed = store.entries(obj, annotation.LAYER)
+            markers = sum(e.marker for e in listed)
+            column = layout.column(align=True)
+            text = f"{len(listed) - markers} curves, {markers} markers" if listed else "none"
+            column.label(text=f"{role}: {text}", icon="VIEW_PAN")
+            row = column.row(align=True)
+            propose = row.operator(
+                "contact_edit.annotation_propose", text="Propose", icon="OUTLINER_OB_ARMATURE"
+            )
+            propose.object_name = obj.name
+        layout.operator("contact_edit.annotation_export", text="Export annotation.json", icon="EXPORT")
+        layout.label(text="Without a file, Retarget reads these;")
+        layout.label(text="procedural hands have one built in.")
 
 
 class VIEW3D_PT_contact_edit_library(SubPanel, bpy.types.Panel):
@@ -247,5 +297,6 @@ classes = (
     VIEW3D_PT_contact_edit_pose,
     VIEW3D_PT_contact_edit_rig,
     VIEW3D_PT_contact_edit_retarget,
+    VIEW3D_PT_contact_edit_annotation,
     VIEW3D_PT_contact_edit_library,
 )

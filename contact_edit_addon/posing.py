@@ -102,8 +102,8 @@ def problem(scene: bpy.types.Scene, stage: str = "ALL") -> Problem:
     """
     hand, target = _objects(scene)
     settings = scene.contact_edit
-    hand_set = store.load(hand, settings.deformed)
-    object_set = store.load(target)
+    hand_set = store.load(hand, settings.deformed, layer="CONTACTS")
+    object_set = store.load(target, layer="CONTACTS")
     hand_points, object_points, pairs = contact_pairs(hand_set, object_set)
     posed = bridge.posed_hand(hand, hand_set.mesh.faces, hand_points, settings.hand_root)
     _reports[scene.name] = describe_plan(posed.plan)
@@ -288,7 +288,7 @@ def check_rig(scene: bpy.types.Scene) -> RigReport:
         _reports.pop(scene.name, None)
         return RigReport(False, ("Choose the hand",))
     try:
-        contacts = store.load(hand)
+        contacts = store.load(hand, layer="CONTACTS")
         points = [contacts[name].points for name in contacts]
         rig = bridge.hand_rig(hand)
         plan = bridge.hand_plan(
@@ -340,7 +340,7 @@ def flex(
     """
     hand, target = _objects(scene)
     settings = scene.contact_edit
-    hand_set = store.load(hand, settings.deformed)
+    hand_set = store.load(hand, settings.deformed, layer="CONTACTS")
     posed = bridge.posed_hand(hand, hand_set.mesh.faces, hand_root=settings.hand_root)
     armature = posed.armature_object()
     rig = posed.rig

@@ -2,7 +2,9 @@
 
 Every mesh object has ``contact_edit``: its contact set as a contact file (JSON text: intrinsic points,
 axes, links, pairs; see :mod:`geodesics.contacts`), plus a list of its patches (names, colours) that the
-sidebar's list shows and that is rebuilt from the set whenever it changes. The scene has
+sidebar's list shows and that is rebuilt from the set whenever it changes. A hand also has a second set of
+the same kind, its retargeting annotation (:mod:`.annotation`: each patch's axis an axial curve, or the
+patch a virtual marker), with its own list; ``layer`` says which of the two the tools edit. The scene has
 ``contact_edit``: which objects are the hand and the object, and the solver settings. Keeping the data
 in ID properties makes it survive save and reload and follow undo.
 """
@@ -23,6 +25,32 @@ class CONTACT_EDIT_PG_patch(bpy.types.PropertyGroup):
     parent: bpy.props.StringProperty(name="Parent")
     pair: bpy.props.StringProperty(name="Paired with")
     visible: bpy.props.BoolProperty(name="Visible", default=True)
+    # In an annotation only:
+    marker: bpy.props.BoolProperty(
+        name="Marker",
+        description="A virtual marker (the patch's points), not an axial curve (the patch's axis)",
+    )
+    axis_scale: bpy.props.FloatProperty(
+        name="λA",
+        min=0.0,
+        soft_max=4.0,
+        description="How much longer the curve is laid out on this hand than the source's is (as a target "
+        "hand). 0: measured, the ratio of the two axes' lengths",
+    )
+    radial_scale: bpy.props.FloatProperty(
+        name="λS",
+        min=0.0,
+        soft_max=4.0,
+        description="How much farther from the curve contacts lie on this hand than on the source (as a "
+        "target hand). 0: measured, the ratio of the two curves' girths, or else of their strips' widths",
+    )
+    girth: bpy.props.FloatProperty(
+        name="Girth",
+        min=0.0,
+        subtype="DISTANCE",
+        description="How thick the finger or palm under the curve is (Propose measures it from the bones' "
+        "skin): λS is the ratio of two hands' girths. 0: none, λS from the strips' widths",
+    )
 
 
 class CONTACT_EDIT_PG_object(bpy.types.PropertyGroup):
@@ -31,6 +59,30 @@ class CONTACT_EDIT_PG_object(bpy.types.PropertyGroup):
     data: bpy.props.StringProperty(name="Contact data", description="The contact set, as a contact file")
     patches: bpy.props.CollectionProperty(type=CONTACT_EDIT_PG_patch)
     active: bpy.props.IntProperty(name="Active patch", default=0, min=0)
+    annotation: bpy.props.StringProperty(
+        name="Annotation data", description="The hand's retargeting annotation, as a contact file"
+    )
+    annotation_patches: bpy.props.CollectionProperty(type=CONTACT_EDIT_PG_patch)
+    annotation_active: bpy.props.IntProperty(name="Active curve or marker", default=0, min=0)
+    layer: bpy.props.EnumProperty(
+        name="Edit",
+        items=[
+            ("CONTACTS", "Contacts", "The tools edit the object's contact patches"),
+            (
+                "ANNOTATION",
+                "Annotation",
+                "The tools edit the hand's retargeting annotation: curves and markers",
+            ),
+        ],
+        default="CONTACTS",
+        update=lambda self, context: _redraw(),
+    )
+
+
+def _redraw() -> None:
+    from . import store
+
+    store.redraw()
 
 
 def _is_mesh(_self, obj) -> bool:

@@ -43,7 +43,8 @@ class CONTACT_EDIT_PG_retarget(bpy.types.PropertyGroup):
         subtype="FILE_PATH",
         description=(
             "An annotation.json made for these two hands (the format contact-edit retarget writes). "
-            "Empty: the built-in annotation, for the procedural hands of Add > Contact Edit"
+            "Empty: the annotations drawn on the two hands (Retarget > Annotation), else the built-in one "
+            "of the procedural hands of Add > Contact Edit"
         ),
     )
     contacts: bpy.props.BoolProperty(

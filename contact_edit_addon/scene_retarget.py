@@ -20,8 +20,9 @@ parts, so that an operator keeps Blender responsive:
 The pipeline works in the target armature's space: the world-space motion is carried there by the inverse
 of the armature's world matrix (a rotation, a translation and a uniform scale, the only scale the solve
 accepts). The annotation, which names points on both hands' surfaces, is read from an ``annotation.json``
-(in the format ``contact-edit retarget`` writes) or, for the procedural hands the add-on makes (*Add › Contact
-Edit*), built in (:func:`solver.retarget.annotate.procedural_hand`).
+(in the format ``contact-edit retarget`` writes), or from the curves and markers drawn on the two hands
+(:mod:`.annotation`), or, for the procedural hands the add-on makes (*Add › Contact Edit*), built in
+(:func:`solver.retarget.annotate.procedural_hand`).
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from solver.retarget.annotate import procedural_kind
 from solver.retarget.job import JobOutcome, RetargetJob, run_job
 
 from . import bridge, scene_motion
+from .annotation import hand_pair, has_annotation
 from .bridge import BridgeError, PosedHand
 from .retarget_action import metrics_image, write_action
 
@@ -73,7 +75,8 @@ def prepare(
         The frames retargeted, both included.
     annotation_path : str
         An ``annotation.json`` for this source and target hand (Blender's ``//`` prefix allowed); empty:
-        the built-in annotation, for the procedural hands only.
+        the two hands' own annotations (:mod:`.annotation`) when they have them, else the built-in
+        annotation, for the procedural hands only.
     hand_root : str
         The target's wrist bone; empty finds it where the bones under the annotated points branch.
     options : RetargetOptions, optional
@@ -102,10 +105,8 @@ def prepare(
         except SolverError as err:
             text = str(err) if str(path) in str(err) else f"the annotation file {path}: {err}"
             raise BridgeError(f"{text} (retargeting '{source.name}' onto '{target.name}')") from err
-        points = SurfacePoints.concatenate(
-            [c.target_start for c in annotation.curves if not c.dropped]
-            + [m.target for m in annotation.markers]
-        )
+    elif has_annotation(source) or has_annotation(target):
+        annotation = hand_pair(source, target, reader.hand_rest, target_mesh)
     else:
         for role, name, mesh in (
             ("source", source.name, reader.hand_rest),
@@ -114,11 +115,16 @@ def prepare(
             if procedural_kind(mesh) is None:
                 raise BridgeError(
                     f"the {role} hand '{name}' is not one of the procedural hands (Add > Contact Edit), "
-                    "which have an annotation built in: give an annotation file made for these two hands "
-                    "(annotation.json, as contact-edit retarget writes them)",
+                    "which have an annotation built in: propose and edit an annotation on each hand "
+                    "(Retarget > Annotation), or give an annotation file made for these two hands",
                     name,
                 )
-        points = None
+    points = None
+    if annotation is not None:
+        points = SurfacePoints.concatenate(
+            [c.target_start for c in annotation.curves if not c.dropped]
+            + [m.target for m in annotation.markers]
+        )
     posed = bridge.posed_hand(target, target_mesh.faces, points, hand_root)
     if posed.rig.locked[:3].all():
         raise BridgeError(

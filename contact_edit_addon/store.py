@@ -1,5 +1,9 @@
 """Reading and writing an object's contact set (kept as a contact file in its ``contact_edit.data``),
 and pairing files: a hand's and an object's sets together, what ``contact-edit pose --contacts`` reads.
+
+A hand has a second set, its retargeting annotation (``contact_edit.annotation``, with its own patch
+list). Every function here works on the set the object's ``contact_edit.layer`` says the tools edit, or on
+the one ``layer`` names, so that every tool edits either.
 """
 
 from __future__ import annotations
@@ -28,18 +32,50 @@ PALETTE = (
 )
 
 
-def load(obj: bpy.types.Object, deformed: bool = False) -> ContactSet:
+#: Per layer: the object's property holding the set, its patch list, and the list's active index.
+LAYERS = {
+    "CONTACTS": ("data", "patches", "active"),
+    "ANNOTATION": ("annotation", "annotation_patches", "annotation_active"),
+}
+#: What a patch list's entry keeps by name when the list is rebuilt: set by hand, not by the set.
+KEPT = ("color", "visible", "marker", "axis_scale", "radial_scale", "girth")
+
+
+def _names(obj: bpy.types.Object, layer: str | None) -> tuple[str, str, str]:
+    return LAYERS[layer or obj.contact_edit.layer]
+
+
+def text(obj: bpy.types.Object, layer: str | None = None) -> str:
+    """The set as stored (a contact file's JSON; empty for none)."""
+    return getattr(obj.contact_edit, _names(obj, layer)[0])
+
+
+def entries(obj: bpy.types.Object, layer: str | None = None):
+    """The patch list the sidebar shows."""
+    return getattr(obj.contact_edit, _names(obj, layer)[1])
+
+
+def active_index(obj: bpy.types.Object, layer: str | None = None) -> int:
+    return getattr(obj.contact_edit, _names(obj, layer)[2])
+
+
+def set_active(obj: bpy.types.Object, index: int, layer: str | None = None) -> None:
+    setattr(obj.contact_edit, _names(obj, layer)[2], max(index, 0))
+
+
+def load(obj: bpy.types.Object, deformed: bool = False, layer: str | None = None) -> ContactSet:
     """The object's contact set on its current mesh. Contacts saved for a different triangulation or
     topology of the object are projected onto the current surface by their saved positions."""
     mesh = bridge.trimesh(obj, deformed=deformed)
-    text = obj.contact_edit.data
-    if not text:
+    stored = text(obj, layer)
+    what = "annotation" if (layer or obj.contact_edit.layer) == "ANNOTATION" else "contacts"
+    if not stored:
         return ContactSet(mesh)
     try:
-        data = json.loads(text)
+        data = json.loads(stored)
     except json.JSONDecodeError as err:
-        raise ContactError(f"the contact data stored on '{obj.name}' is damaged: {err}") from None
-    return _from_dict(data, mesh, f"the contacts of '{obj.name}'")
+        raise ContactError(f"the {what} stored on '{obj.name}' is damaged: {err}") from None
+    return _from_dict(data, mesh, f"the {what} of '{obj.name}'")
 
 
 def _from_dict(data, mesh, source: str) -> ContactSet:
@@ -49,23 +85,34 @@ def _from_dict(data, mesh, source: str) -> ContactSet:
     return ContactSet.from_dict(data, mesh, remap=not same, source=source)
 
 
-def save(obj: bpy.types.Object, contacts: ContactSet, colors: dict | None = None) -> None:
-    """Store the set on the object and rebuild the patch list the sidebar shows (keeping colours)."""
-    entries = obj.contact_edit.patches
-    previous = {e.name: tuple(e.color) for e in entries}
-    visible = {e.name: e.visible for e in entries}
-    colors = {**previous, **(colors or {})}
-    obj.contact_edit.data = json.dumps(contacts.to_dict())
-    entries.clear()
+def save(
+    obj: bpy.types.Object,
+    contacts: ContactSet,
+    colors: dict | None = None,
+    layer: str | None = None,
+    markers=(),
+) -> None:
+    """Store the set on the object and rebuild the patch list the sidebar shows, keeping what was set by
+    hand (:data:`KEPT`) per name; ``colors`` and ``markers`` (names) set those of new patches."""
+    data, list_name, _ = _names(obj, layer)
+    listed = getattr(obj.contact_edit, list_name)
+    kept = {e.name: {key: getattr(e, key) for key in KEPT} for e in listed}
+    setattr(obj.contact_edit, data, json.dumps(contacts.to_dict()))
+    listed.clear()
     for i, name in enumerate(contacts):
-        entry = entries.add()
+        entry = listed.add()
         entry.name = name
-        entry.color = colors.get(name, PALETTE[i % len(PALETTE)])
+        entry.color = PALETTE[i % len(PALETTE)]
+        for key, value in kept.get(name, {}).items():
+            setattr(entry, key, value)
+        if name in (colors or {}):
+            entry.color = colors[name]
+        if name in markers:
+            entry.marker = True
         entry.points = len(contacts[name])
         entry.parent = contacts.links[name].parent if name in contacts.links else ""
         entry.pair = contacts.pairs.get(name, "")
-        entry.visible = visible.get(name, True)
-    obj.contact_edit.active = min(obj.contact_edit.active, max(len(entries) - 1, 0))
+    set_active(obj, min(active_index(obj, layer), len(listed) - 1), layer)
     redraw()
 
 
@@ -79,11 +126,11 @@ def redraw(area_type: str | None = None) -> None:
                 area.tag_redraw()
 
 
-def active_patch_name(obj: bpy.types.Object) -> str | None:
-    entries = obj.contact_edit.patches
-    if not entries:
+def active_patch_name(obj: bpy.types.Object, layer: str | None = None) -> str | None:
+    listed = entries(obj, layer)
+    if not listed:
         return None
-    return entries[min(obj.contact_edit.active, len(entries) - 1)].name
+    return listed[min(active_index(obj, layer), len(listed) - 1)].name
 
 
 #: The pairing file's format tag.
@@ -95,8 +142,8 @@ def save_pairing(path, hand: bpy.types.Object, target: bpy.types.Object) -> None
     data = {
         "format": PAIRING_FORMAT,
         "version": 1,
-        "hand": load(hand).to_dict(),
-        "object": load(target).to_dict(),
+        "hand": load(hand, layer="CONTACTS").to_dict(),
+        "object": load(target, layer="CONTACTS").to_dict(),
     }
     write_atomically(path, json.dumps(data, indent=1))
 
@@ -111,5 +158,5 @@ def load_pairing(path, hand: bpy.types.Object, target: bpy.types.Object, remap: 
     for key, obj in (("hand", hand), ("object", target)):
         source = f"{path} ({key} '{obj.name}')"
         sets[key] = ContactSet.from_dict(file.data.get(key), bridge.trimesh(obj), remap=remap, source=source)
-    save(hand, sets["hand"])
-    save(target, sets["object"])
+    save(hand, sets["hand"], layer="CONTACTS")
+    save(target, sets["object"], layer="CONTACTS")

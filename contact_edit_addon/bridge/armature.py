@@ -25,6 +25,7 @@ from geodesics import SurfacePoints
 from solver import SkinnedMesh, SolverError
 from solver.control_rig import ControlRig
 from solver.controls import Armature, Plan
+from solver.retarget.propose import Skeleton
 from solver.rotations import euler_to_matrix, matrix_to_quaternion, quaternion_to_axis_angle
 
 from .errors import BridgeError
@@ -161,6 +162,26 @@ def hand_rig(hand: bpy.types.Object) -> HandRig:
         sparse.diags(np.where(total > MIN_TOTAL_WEIGHT, 1.0 / np.maximum(total, 1e-300), 0.0)) @ W
     )
     return HandRig(armature, read_armature(armature), deform, W, to_armature)
+
+
+def hand_skeleton(hand: bpy.types.Object) -> Skeleton:
+    """The deform bones of the armature deforming ``hand``, in the hand mesh's space, each parented to its
+    nearest deform ancestor (Rigify's finger bones hang from mechanism bones), with the hand's weights."""
+    rig = hand_rig(hand)
+    bones = rig.armature.data.bones
+    index = {name: i for i, name in enumerate(rig.deform)}
+    parents = []
+    for name in rig.deform:
+        parent = bones[name].parent
+        while parent is not None and parent.name not in index:
+            parent = parent.parent
+        parents.append(-1 if parent is None else index[parent.name])
+    to_mesh = np.linalg.inv(rig.hand_to_armature)
+    M = np.array([to_mesh @ np.array(bones[name].matrix_local) for name in rig.deform])
+    scale = np.linalg.norm(M[:, :3, 0], axis=1)  # uniform (hand_rig checks)
+    M[:, :3, :3] /= scale[:, None, None]
+    lengths = np.array([bones[name].length for name in rig.deform]) * scale
+    return Skeleton(rig.deform, np.array(parents, np.int64), M, lengths, rig.weights)
 
 
 def contact_bones(rig: HandRig, faces: np.ndarray, points: SurfacePoints | None) -> list[str]:

@@ -1,7 +1,7 @@
 """The operators under ``bpy.ops.contact_edit``: each works interactively and with explicit properties
 in background mode, so scripts run the same tools an animator clicks."""
 
-from . import axis, device, edit, manage, mirror, paint, proxy, retarget, solve, transfer
+from . import annotation, axis, device, edit, manage, mirror, paint, proxy, retarget, solve, transfer
 
 classes = (
     *paint.classes,
@@ -13,5 +13,6 @@ classes = (
     *proxy.classes,
     *solve.classes,
     *retarget.classes,
+    *annotation.classes,
     *device.classes,
 )

@@ -18,6 +18,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from .. import store
+
 #: Seconds between checks of the worker (and header updates) while it runs.
 POLL_INTERVAL = 0.05
 
@@ -85,7 +87,7 @@ class Background:
             return self.now(context, plan)
         self._job = Job(plan.work, f"contact-edit: {plan.label}")
         self._plan, self._began = plan, time.monotonic()
-        self._started_from = [(obj, obj.contact_edit.data) for obj in plan.watched]
+        self._started_from = [(obj, obj.contact_edit.layer, store.text(obj)) for obj in plan.watched]
         wm = context.window_manager
         self._job_timer = wm.event_timer_add(POLL_INTERVAL, window=context.window)
         self._job_area = context.area
@@ -126,9 +128,9 @@ class Background:
     def _changed(self) -> str:
         """The watched objects whose contacts are not what the work started from (or that are gone)."""
         names = []
-        for obj, data in self._started_from:
+        for obj, layer, data in self._started_from:
             try:
-                if obj.contact_edit.data != data:
+                if store.text(obj, layer) != data:
                     names.append(f"'{obj.name}'")
             except ReferenceError:  # deleted meanwhile
                 names.append("a deleted object")

@@ -13,7 +13,7 @@ from geodesics import ContactError, GeodesicError, MeshError, SurfacePoints, tan
 from solver import SolverError
 from tangible import TangibleError
 
-from .. import bridge
+from .. import bridge, store
 
 #: Events that move the view: the modal tools pass them through to Blender while waiting for a click.
 NAVIGATION = {
@@ -119,8 +119,10 @@ def need_hand_and_object(context) -> str | None:
 
 def need_patch(context) -> str | None:
     reason = need_mesh(context)
-    if reason is None and not context.active_object.contact_edit.patches:
-        reason = f"'{context.active_object.name}' has no contact patches yet: paint one first"
+    obj = context.active_object
+    if reason is None and not store.entries(obj):
+        what = "annotation curves or markers" if obj.contact_edit.layer == "ANNOTATION" else "contact patches"
+        reason = f"'{obj.name}' has no {what} yet: paint one first"
     return reason
 
 

@@ -93,7 +93,7 @@ class CONTACT_EDIT_OT_library_save(ExplainedPoll, bpy.types.Operator, ExportHelp
     def execute(self, context):
         obj = mesh_object(context, self.object_name or None)
         store.load(obj).save(self.filepath)  # written atomically: never half a file
-        self.report({"INFO"}, f"Saved {len(obj.contact_edit.patches)} patches to {self.filepath}")
+        self.report({"INFO"}, f"Saved {len(store.entries(obj))} patches to {self.filepath}")
         return {"FINISHED"}
 
 

@@ -144,7 +144,7 @@ class CONTACT_EDIT_OT_paint(Background, HotkeyTool, bpy.types.Operator):
         if event.type == "LEFTMOUSE" and event.value == "PRESS" and not self._painting:
             self._painting = True
             self.mode = "SUBTRACT" if event.ctrl else "ADD" if event.shift else "NEW"
-            if self.mode != "NEW" and not self._object.contact_edit.patches:
+            if self.mode != "NEW" and not store.entries(self._object):
                 self.report({"ERROR"}, f"'{self._object.name}' has no patch to add to or take from yet")
                 return self._end(context, {"CANCELLED"})
             self._dab(context, event)
@@ -216,7 +216,7 @@ class CONTACT_EDIT_OT_paint(Background, HotkeyTool, bpy.types.Operator):
             self._kept = np.ones(len(self._touched[1]), bool) if self._touched else None
             self._painted, self._ids = SurfacePoints.concatenate([]), np.empty(0, np.int64)
         dabs = self._dabs(obj, self._mesh, items)[0]
-        entries = {e.name: tuple(e.color) for e in obj.contact_edit.patches}
+        entries = {e.name: tuple(e.color) for e in store.entries(obj)}
         if self.mode == "SUBTRACT":
             name, patch = self._touched
             self._kept &= erase(self._mesh, patch.points, dabs)
@@ -314,7 +314,7 @@ class CONTACT_EDIT_OT_paint(Background, HotkeyTool, bpy.types.Operator):
             contacts = store.load(obj, deformed)
             name = unique_name(contacts, base)
             store.save(obj, contacts.add(name, patch))
-            obj.contact_edit.active = len(obj.contact_edit.patches) - 1
+            store.set_active(obj, len(store.entries(obj)) - 1)
             self.report(
                 {"INFO"},
                 f"Painted '{name}' on '{obj.name}': {len(patch)} points, axis of {len(patch.axis)} points",

@@ -139,7 +139,10 @@ class CONTACT_EDIT_OT_transfer(HotkeyTool, bpy.types.Operator):
 
     def _load(self, context):
         settings = context.scene.contact_edit
-        return store.load(settings.hand, settings.deformed), store.load(settings.target)
+        return (
+            store.load(settings.hand, settings.deformed, layer="CONTACTS"),
+            store.load(settings.target, layer="CONTACTS"),
+        )
 
     def _transferred(self, context, hand_set, object_set):
         """(hand set, object set) after the transfer at the operator's start and direction, and the
@@ -165,8 +168,8 @@ class CONTACT_EDIT_OT_transfer(HotkeyTool, bpy.types.Operator):
         settings = context.scene.contact_edit
         hand_set, object_set = self._load(context)
         hand_after, object_after, colors = self._transferred(context, hand_set, object_set)
-        store.save(settings.target, object_after, colors=colors)
-        store.save(settings.hand, hand_after)
+        store.save(settings.target, object_after, colors=colors, layer="CONTACTS")
+        store.save(settings.hand, hand_after, layer="CONTACTS")
         moved = len(object_after) - len(object_set)
         self.report(
             {"INFO"}, f"Transferred {moved} patch{'es' if moved > 1 else ''} onto '{settings.target.name}'"

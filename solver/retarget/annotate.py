@@ -77,7 +77,7 @@ def _palm_sides(hand: Hand) -> tuple[float, float]:
     return (along.max(), along.min()) if thumb_side > 0 else (along.min(), along.max())
 
 
-def hand_curves(hand: Hand) -> dict[str, tuple[Axis, float]]:
+def hand_curves(hand: Hand, strict: bool = True, rays: bool = False) -> dict[str, tuple[Axis, float]]:
     """The default axial curves of a procedural hand, and each curve's girth.
 
     One curve per chain along its palmar side (finger base crease to finger pad; the thumb from its
@@ -87,7 +87,14 @@ def hand_curves(hand: Hand) -> dict[str, tuple[Axis, float]]:
     sideways by a fraction of an edge (:data:`NUDGES`) until laying it out again from its start
     reproduces it: a shortest geodesic drawn to a line of saddle vertices (the palmar midline of the
     procedural fingers) is not reproduced by tracing (the straightest geodesic through a vertex differs
-    from the shortest one), so it could not move contacts faithfully even onto its own hand.
+    from the shortest one), so it could not move contacts faithfully even onto its own hand. Where no
+    nudge is reproduced, ``strict`` refuses the hand; otherwise the curve whose tracing strays least is
+    taken (a proposal for a hand the user brings, which the user then edits).
+
+    Each end is the skin point nearest a probe point on the palmar side of a bone; with ``rays``, where a
+    ray from the bone towards that side leaves the skin instead. Rays are the better conditioned (a probe
+    point as near two pieces of skin, the thenar eminence and the thumb, jumps between them as the bone's
+    side turns by a degree); the built-in annotation keeps the probe points it was made with.
     """
     rig = hand.rig
     probe = PROBE_PER_LENGTH * hand.length
@@ -104,34 +111,89 @@ def hand_curves(hand: Hand) -> dict[str, tuple[Axis, float]]:
             rig.tails[last] - 0.3 * rig.lengths[last] * yl + probe * zl,
             x0,
             _girth(hand, chain),
+            (z0, zl),
         )
     if _has_palm(hand):
         b = rig.bone_index("hand")
         x, y, z = _bone_frame(hand, b)
         head, length = rig.heads[b], rig.lengths[b]
         girth = _girth(hand, [b])
-        ends["palm"] = (head + 0.12 * length * y + probe * z, head + 0.9 * length * y + probe * z, x, girth)
+        ends["palm"] = (
+            head + 0.12 * length * y + probe * z,
+            head + 0.9 * length * y + probe * z,
+            x,
+            girth,
+            (z, z),
+        )
         radial, ulnar = _palm_sides(hand)
         mid = head + 0.55 * length * y + probe * z
-        ends["palm_across"] = (mid + 0.8 * radial * x, mid + 0.8 * ulnar * x, y, girth)
-    return {name: (_clean_axis(hand, a, b, side), girth) for name, (a, b, side, girth) in ends.items()}
+        ends["palm_across"] = (mid + 0.8 * radial * x, mid + 0.8 * ulnar * x, y, girth, (z, z))
+    skin = _Skin(hand.mesh) if rays else None
+
+    def end(point, side_of_bone):
+        if skin is None:
+            return lambda nudge: _nearest(hand, point + nudge)
+        start = point - probe * side_of_bone  # on the bone
+        return lambda nudge: skin.leaving(start + nudge, side_of_bone)
+
+    return {
+        name: (_clean_axis(hand, end(a, sides[0]), end(b, sides[1]), side, strict), girth)
+        for name, (a, b, side, girth, sides) in ends.items()
+    }
+
+
+class _Skin:
+    """Where rays from inside a mesh leave it (Möller-Trumbore against every face at once)."""
+
+    def __init__(self, mesh: TriMesh):
+        self.mesh = mesh
+        T = mesh.vertices[mesh.faces]
+        self.corner, self.e1, self.e2 = T[:, 0], T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]
+
+    def leaving(self, origin, direction) -> SurfacePoints:
+        """The first surface point along the ray (the nearest surface point to ``origin`` if none)."""
+        p = np.cross(direction, self.e2)
+        det = np.einsum("ij,ij->i", self.e1, p)
+        usable = np.abs(det) > 1e-300
+        inverse = 1.0 / np.where(usable, det, 1.0)
+        s = origin - self.corner
+        u = np.einsum("ij,ij->i", s, p) * inverse
+        q = np.cross(s, self.e1)
+        v = (q @ direction) * inverse
+        t = np.einsum("ij,ij->i", q, self.e2) * inverse
+        hit = np.flatnonzero(usable & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0))
+        if hit.size == 0:
+            return SurfacePoints.nearest(self.mesh, np.asarray(origin, float)[None])
+        f = hit[np.argmin(t[hit])]
+        return SurfacePoints([f], [[1.0 - u[f] - v[f], u[f], v[f]]])
 
 
 #: Sideways nudges (in mean edge lengths) tried in turn until a default curve avoids every vertex.
 NUDGES = (0.5, -0.5, 0.65, -0.65, 0.8, -0.8, 0.35, -0.35, 1.0, -1.0)
 
 
-def _clean_axis(hand: Hand, a, b, side) -> Axis:
+def _clean_axis(hand: Hand, a, b, side, strict: bool) -> Axis:
+    """The first nudged curve that tracing reproduces; ``a(offset)`` and ``b(offset)`` give its ends with
+    their probe point (or ray) moved by ``offset``."""
     mesh = hand.mesh
     step = mesh.mean_edge_length
+    tried = []
     for nudge in NUDGES:
-        axis = Axis.between(
-            mesh, _nearest(hand, a + nudge * step * side), _nearest(hand, b + nudge * step * side)
-        )
+        axis = Axis.between(mesh, a(nudge * step * side), b(nudge * step * side))
         again = axis.trace(mesh, axis.start, axis.direction)
-        if np.abs(again.points.positions(mesh) - axis.points.positions(mesh)).max() <= 1e-9 * hand.length:
+        if len(again) == len(axis):
+            stray = np.abs(again.points.positions(mesh) - axis.points.positions(mesh)).max()
+        else:
+            stray = np.abs(again.points.positions(mesh)[-1] - axis.points.positions(mesh)[-1]).max()
+        if stray <= 1e-9 * hand.length:
             return axis
-    raise AnnotationError(f"no default curve from {a} to {b} on the {hand.kind} hand can be laid out again")
+        tried.append((stray, axis))
+    if not strict:
+        return min(tried, key=lambda t: t[0])[1]
+    ends = [end(np.zeros(3)).positions(mesh)[0].round(4).tolist() for end in (a, b)]
+    raise AnnotationError(
+        f"no default curve from {ends[0]} to {ends[1]} on the {hand.kind} hand can be laid out again"
+    )
 
 
 def hand_markers(hand: Hand) -> dict[str, SurfacePoints]:

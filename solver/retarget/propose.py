@@ -3,16 +3,18 @@
 The paper's artist draws each hand's axial curves and markers by hand. :func:`propose_patches` draws a
 first version from the hand's armature so that the artist edits rather than starts from nothing: it finds
 the finger chains under the wrist bone, names them (the thumb is the chain that starts nearest the wrist,
-then index, middle, ring and pinky in order away from it), finds the palmar side from the way the fingers
-curl at rest, and then lays out the curves and markers exactly as the built-in annotation of the
+then index, middle, ring and pinky in order away from it), takes each finger's palmar side to be the side
+it curls to at rest (so the bones' roll, which riggers set their own way, does not matter), and then lays
+out the curves and markers exactly as the built-in annotation of the
 procedural hands does (:func:`.annotate.hand_curves`, :func:`.annotate.hand_markers`), on a view of the
 rig shaped like a procedural hand: bone 0 the forearm (everything outside the wrist's subtree), bone 1 the
 palm (the wrist bone and every bone under it that is in no finger), then each finger's bones,
 with every bone's frame turned so that its z axis points palmar.
 
 The result is a :class:`geodesics.ContactSet` for :func:`.drawn.annotation_from_patches`: each curve a
-strip of skin along its axis (half as wide as the finger's girth, so that the ratio of two hands' strip
-widths measures λ_S), each marker a small area of skin.
+strip of skin along its axis (half as wide as the finger's girth), each marker a small area of skin; and
+each curve's girth, whose ratio between two hands is their λ_S as in the built-in annotation (the strips'
+widths measure it less well: a strip across the palm takes in whatever skin is near).
 """
 
 from __future__ import annotations
@@ -36,8 +38,10 @@ from .annotations import AnnotationError
 FINGERS = ("thumb", "index", "middle", "ring", "pinky")
 #: Palmar-side choices: a bone's local axis, with a sign.
 PALMAR_SIDES = ("+Z", "-Z", "+X", "-X")
-#: Least summed rest curl (radians) from which the palmar side is told.
+#: Least summed rest curl of a finger (radians, about) from which its palmar side is told.
 MIN_CURL = np.radians(2.0)
+#: A turn of a finger's frame smaller than this (radians) is rounding, and not made.
+ROUNDING = 1e-9
 
 
 @dataclass(frozen=True)
@@ -82,6 +86,9 @@ class Proposal:
     wrist: str
     chains: dict[str, tuple[str, ...]]
     palmar: str
+    #: Each curve's girth: the mean distance of its bones' skin from their lines (λ_S of two hands is the
+    #: ratio of their girths, as in the built-in annotation).
+    girths: dict[str, float]
 
 
 def propose_patches(mesh: TriMesh, skeleton: Skeleton, wrist: str | None = None, palmar: str | None = None):
@@ -96,8 +103,8 @@ def propose_patches(mesh: TriMesh, skeleton: Skeleton, wrist: str | None = None,
         The wrist bone; default: the one bone under which two to five finger chains meet (a whole body's
         armature has two hands: name it then).
     palmar : str, optional
-        The fingers' palmar side as a local bone axis (:data:`PALMAR_SIDES`); default: the side the
-        fingers curl to at rest.
+        The fingers' palmar side as a local bone axis (:data:`PALMAR_SIDES`), for rigs whose fingers are
+        straight at rest; default: the side each finger curls to at rest.
 
     Returns
     -------
@@ -116,13 +123,12 @@ def propose_patches(mesh: TriMesh, skeleton: Skeleton, wrist: str | None = None,
     else:
         root = _find_wrist(skeleton)
     chains = _name_chains(skeleton, root, _finger_chains(skeleton, root))
-    side = palmar or _curl_side(skeleton, chains)
-    if side not in PALMAR_SIDES:
-        raise AnnotationError(f"the palmar side must be one of {', '.join(PALMAR_SIDES)}, got {side!r}")
-    hand = _hand_view(mesh, skeleton, root, chains, side)
-    contacts, markers = _patches(hand)
+    if palmar is not None and palmar not in PALMAR_SIDES:
+        raise AnnotationError(f"the palmar side must be one of {', '.join(PALMAR_SIDES)}, got {palmar!r}")
+    hand = _hand_view(mesh, skeleton, root, chains, palmar)
+    contacts, markers, girths = _patches(hand)
     names = {f: tuple(skeleton.names[b] for b in c) for f, c in chains.items()}
-    return Proposal(contacts, markers, skeleton.names[root], names, side)
+    return Proposal(contacts, markers, skeleton.names[root], names, palmar or "curl", girths)
 
 
 def _finger_chains(skeleton: Skeleton, root: int) -> list[list[int]]:
@@ -187,40 +193,74 @@ def _name_chains(skeleton: Skeleton, root: int, chains: list[list[int]]) -> dict
     return {name: chains[i] for name, i in zip(FINGERS, order, strict=False)}
 
 
-def _curl_side(skeleton: Skeleton, chains: dict[str, list[int]]) -> str:
-    """The local axis (with its sign) that the fingers' next bones bend towards at rest, summed."""
+def _curl(M: np.ndarray, chain: list[int]) -> np.ndarray:
+    """(x, z): how far a chain's bones bend towards their first bone's local x and z axes at rest, summed
+    (each bend as the next bone's direction across the bone before it, in that bone's frame)."""
+    total = np.zeros(2)
+    for a, b in itertools.pairwise(chain):
+        bend = M[b, :3, 1] - (M[b, :3, 1] @ M[a, :3, 1]) * M[a, :3, 1]
+        total += [bend @ M[a, :3, 0], bend @ M[a, :3, 2]]
+    return total
+
+
+def _palmar_frames(
+    skeleton: Skeleton, chains: dict[str, list[int]], palmar: str | None
+) -> dict[int, np.ndarray]:
+    """Each finger bone's frame turned about its length so that its z axis points palmar: to ``palmar``
+    (a local axis) if given; else a finger's to the side its chain curls to at rest, whatever the bones'
+    roll. The thumb's pad faces between its own curl and the palm's side (the fingers' mean: on the
+    procedural hands its pad side lies within a few degrees of that bisector, its curl and the palm's
+    side some 45° to either side of it); a straight chain faces the palm's side."""
     M = skeleton.matrices
-    total = np.zeros(2)  # along x, along z
-    for chain in chains.values():
-        for a, b in itertools.pairwise(chain):
-            bend = M[b, :3, 1] - (M[b, :3, 1] @ M[a, :3, 1]) * M[a, :3, 1]
-            total += [bend @ M[a, :3, 0], bend @ M[a, :3, 2]]
-    if np.abs(total).max() < MIN_CURL:
+    if palmar is not None:
+        new_z = {"+Z": (0.0, 1.0), "-Z": (0.0, -1.0), "+X": (1.0, 0.0), "-X": (-1.0, 0.0)}[palmar]
+        return {b: _rolled(M[b], *new_z) for chain in chains.values() for b in chain}
+    curls = {name: _curl(M, chain) for name, chain in chains.items()}
+    curled = [name for name, c in curls.items() if np.hypot(*c) >= MIN_CURL]
+    if not curled:
         raise AnnotationError(
             "the fingers are straight in the rest pose, so the palm's side cannot be told from how they "
             f"curl: choose it ({', '.join(PALMAR_SIDES)})"
         )
-    axis = int(np.argmax(np.abs(total)))
-    return ("+" if total[axis] > 0 else "-") + "XZ"[axis]
+    frames = {}
+    for name in curled:
+        x, z = curls[name] / np.hypot(*curls[name])
+        if abs(x) < ROUNDING and z > 0:  # curls along z but for rounding: keep the frame as it is
+            x, z = 0.0, 1.0
+        frames.update({b: _rolled(M[b], x, z) for b in chains[name]})
+    fingers = [name for name in curled if name != "thumb"] or curled
+    palm_side = np.mean([frames[chains[name][0]][:3, 2] for name in fingers], axis=0)
+    for name in chains.keys() - set(fingers):
+        for b in chains[name]:
+            z = palm_side - (palm_side @ M[b, :3, 1]) * M[b, :3, 1]
+            z /= np.linalg.norm(z)
+            if b in frames:  # a curled thumb: halfway between its curl and the palm's side
+                z += frames[b][:3, 2]
+                z /= np.linalg.norm(z)
+            frames[b] = _rolled(M[b], z @ M[b, :3, 0], z @ M[b, :3, 2])
+    return frames
 
 
-def _turned(M: np.ndarray, side: str) -> np.ndarray:
-    """The frame with its z axis on ``side`` (y kept, right-handed)."""
-    x, y, z = M[:3, 0], M[:3, 1], M[:3, 2]
-    new_z = {"+Z": z, "-Z": -z, "+X": x, "-X": -x}[side]
+def _rolled(M: np.ndarray, x: float, z: float) -> np.ndarray:
+    """The frame turned about its y axis so that its z axis is the unit direction ``x`` X + ``z`` Z (the
+    frame itself, bit for bit, for (0, 1))."""
+    norm = np.hypot(x, z)
+    x, z = x / norm, z / norm
     out = M.copy()
-    out[:3, 0], out[:3, 2] = np.cross(y, new_z), new_z
+    out[:3, 0] = z * M[:3, 0] - x * M[:3, 2]
+    out[:3, 2] = x * M[:3, 0] + z * M[:3, 2]
     return out
 
 
-def _hand_view(mesh: TriMesh, skeleton: Skeleton, root: int, chains, side: str) -> Hand:
+def _hand_view(mesh: TriMesh, skeleton: Skeleton, root: int, chains, palmar: str | None) -> Hand:
     """The hand as :mod:`.annotate` reads a procedural one (see the module's docstring)."""
     M = skeleton.matrices
-    fingers = [b for c in chains.values() for b in c]
-    frames = {b: _turned(M[b], side) for b in fingers}
-    # The palm's palmar side: the fingers' first bones' mean, across the palm bone.
+    frames = _palmar_frames(skeleton, chains, palmar)
+    # The palm's palmar side: the fingers' first bones' mean (the thumb's too only if it is alone), across
+    # the palm bone.
     y = M[root, :3, 1]
-    z = np.mean([frames[c[0]][:3, 2] for c in chains.values()], axis=0)
+    fingers = [c for name, c in chains.items() if name != "thumb"] or list(chains.values())
+    z = np.mean([frames[c[0]][:3, 2] for c in fingers], axis=0)
     z -= (z @ y) * y
     palm = M[root].copy()
     palm[:3, 2] = z / np.linalg.norm(z)
@@ -262,10 +302,10 @@ def _hand_view(mesh: TriMesh, skeleton: Skeleton, root: int, chains, side: str) 
         raise AnnotationError(f"the hand's bones cannot be read as a hand: {err}") from None
 
 
-def _patches(hand: Hand) -> tuple[ContactSet, tuple[str, ...]]:
+def _patches(hand: Hand) -> tuple[ContactSet, tuple[str, ...], dict[str, float]]:
     mesh = hand.mesh
     patches = {}
-    curves = hand_curves(hand)
+    curves = hand_curves(hand, strict=False, rays=True)
     for name, (axis, girth) in curves.items():
         d, _ = cKDTree(axis.points.positions(mesh)).query(mesh.vertices, distance_upper_bound=0.5 * girth)
         near = np.flatnonzero(np.isfinite(d))
@@ -276,4 +316,4 @@ def _patches(hand: Hand) -> tuple[ContactSet, tuple[str, ...]]:
     markers = hand_markers(hand)
     for i, (name, centre) in enumerate(markers.items()):
         patches[name] = ContactPatch(mesh, area_marker(hand, centre, radius, seed=i), some_axis)
-    return ContactSet(mesh, patches), tuple(markers)
+    return ContactSet(mesh, patches), tuple(markers), {name: girth for name, (_, girth) in curves.items()}
