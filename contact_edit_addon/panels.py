@@ -265,14 +265,14 @@ class VIEW3D_PT_contact_edit_annotation(SubPanel, bpy.types.Panel):
             column = layout.column(align=True)
             text = f"{len(listed) - markers} curves, {markers} markers" if listed else "none"
             column.label(text=f"{role}: {text}", icon="VIEW_PAN")
-            row = column.row(align=True)
-            propose = row.operator(
+            propose = column.operator(
                 "contact_edit.annotation_propose", text="Propose", icon="OUTLINER_OB_ARMATURE"
             )
             propose.object_name = obj.name
         layout.operator("contact_edit.annotation_export", text="Export annotation.json", icon="EXPORT")
-        layout.label(text="Without a file, Retarget reads these;")
-        layout.label(text="procedural hands have one built in.")
+        column = layout.column(align=True)
+        column.label(text="Without a file, Retarget reads these,")
+        column.label(text="or with neither, the procedural hands'.")
 
 
 class VIEW3D_PT_contact_edit_library(SubPanel, bpy.types.Panel):

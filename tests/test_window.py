@@ -327,3 +327,41 @@ def test_retargeting_keeps_blender_running_esc_keeps_frames_and_again_goes_on(re
     assert any("Retargeted 16 frames" in line for line in r["reports"])
     assert "panel" in retargeting.shots  # the Retarget panel drawn open, its draw raising nothing
     assert r["undone"] and "Alien from Hand" not in r["actions_after_undo"]  # Ctrl+Z: one step back
+
+
+@pytest.fixture(scope="module")
+def annotating(blender, extension, tmp_path_factory):
+    return session(blender, extension, "annotation", tmp_path_factory)
+
+
+def _changed_pixels(a: Path, b: Path) -> int:
+    """Pixels of the viewport's middle (the hand; not the sidebar, the status bar or the redo panel) that
+    differ between two screenshots."""
+    A, B = (np.asarray(Image.open(p).convert("RGB"), dtype=np.int16) for p in (a, b))
+    h, w = A.shape[:2]
+    middle = (slice(int(0.1 * h), int(0.85 * h)), slice(int(0.05 * w), int(0.6 * w)))
+    return int((np.abs(A[middle] - B[middle]).max(axis=2) > 40).sum())
+
+
+def test_proposing_an_annotation_keeps_blender_running_shows_it_and_undoes_in_one_step(annotating):
+    """Propose on the example hand: its curves and markers are made in a worker thread (no call of the
+    operator holds Blender up for long), the tools switch to the annotation, the viewport draws it instead
+    of the contacts (and the contacts again when switched back), the panels draw without error, and
+    Ctrl+Z takes it all back."""
+    r = annotating.results
+    assert r["proposing"]["longest_gap"] < 1.0, r["proposing"]
+    assert max(seconds for _, seconds in r["calls"]) < 0.3, r["calls"]
+    assert r["layer"] == "ANNOTATION"
+    names = [name for name, _, _ in r["entries"]]
+    assert names[:7] == ["thumb", "index", "middle", "ring", "pinky", "palm", "palm_across"]
+    assert all(girth > 0 for _, marker, girth in r["entries"] if not marker)
+    assert sum(marker for _, marker, _ in r["entries"]) == 19
+    assert any(line.startswith("Proposed on 'Hand'") for line in r["reports"]), r["reports"]
+    shots = annotating.shots
+    assert _changed_pixels(shots["contacts"], shots["annotation"]) > 500  # the annotation is drawn
+    assert (
+        _changed_pixels(shots["contacts"], shots["contacts again"]) < 50
+    )  # the contacts again, as they were
+    assert _changed_pixels(shots["annotation"], shots["annotation again"]) < 50
+    assert "panel" in shots
+    assert r["after_undo"] == 0
