@@ -27,7 +27,14 @@ LAYER = "ANNOTATION"
 
 
 def has_annotation(obj: bpy.types.Object | None) -> bool:
-    return obj is not None and obj.type == "MESH" and bool(store.entries(obj, LAYER))
+    """Whether ``obj`` is a mesh with an annotation (none where the add-on is not registered: a script
+    using :mod:`.scene_retarget` with the bare ``bpy`` module)."""
+    return (
+        obj is not None
+        and obj.type == "MESH"
+        and hasattr(obj, "contact_edit")
+        and bool(store.entries(obj, LAYER))
+    )
 
 
 def proposal_work(hand: bpy.types.Object, wrist: str = "", palmar: str | None = None):

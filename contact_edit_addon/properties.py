@@ -14,10 +14,19 @@ import bpy
 from solver.ik import KEEP_OUT_WEIGHT
 
 
+def _renamed(self, context) -> None:
+    """A name edited in the patch list renames the patch in its set."""
+    if self.stored_name and self.name != self.stored_name:
+        from . import store
+
+        store.rename(self.id_data, self, context.scene)
+
+
 class CONTACT_EDIT_PG_patch(bpy.types.PropertyGroup):
     """One contact patch as the patch list shows it (the contact set is the source of truth)."""
 
-    name: bpy.props.StringProperty(name="Name")
+    name: bpy.props.StringProperty(name="Name", update=_renamed)
+    stored_name: bpy.props.StringProperty(options={"HIDDEN"}, description="The patch's name in its set")
     color: bpy.props.FloatVectorProperty(
         name="Colour", subtype="COLOR", size=4, min=0.0, max=1.0, default=(0.9, 0.4, 0.1, 1.0)
     )

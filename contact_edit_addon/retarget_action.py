@@ -1,5 +1,6 @@
 """A retargeted motion written into the .blend: the target hand's DOF curves as one action on its armature,
-and the retargeting's metrics plot as a packed image.
+the retargeting's per-frame metrics as curves in the same action (the Graph Editor plots them, with no
+dependency), and its metrics plot as a packed image where matplotlib drew one.
 
 The action keys exactly what :func:`.bridge.apply_pose` keys (the controls an animator keys, in their own
 rotation modes, and the root control's location), at every given frame, but is built in one pass: every
@@ -97,6 +98,39 @@ def write_action(posed: PosedHand, theta, frames, name: str, replace: bool = Fal
     return action
 
 
+#: The per-frame metrics keyed beside the pose: the armature's custom property, and what it holds.
+METRICS = {
+    "retarget_contacts_mm": "The frame's mean distance of the transferred contacts from the object (mm)",
+    "retarget_markers_mm": "The frame's mean distance of the virtual markers from their targets (mm)",
+    "retarget_hand_object_percent": "The frame's hand-object intersection (% of the hand's volume)",
+    "retarget_self_intersection_percent": "The frame's self-intersection of the hand (%)",
+}
+
+
+def write_metrics(armature: bpy.types.Object, action: bpy.types.Action, frames, values: dict) -> None:
+    """Key the retargeting's per-frame metrics (``values``: :data:`METRICS` name -> (F,) array, NaN where a
+    frame has none) as linear curves of the armature's custom properties in ``action``, in a group of
+    their own, so that the Graph Editor plots them beside the motion."""
+    fcurves = _action_fcurves(action, armature)
+    frames = np.asarray(frames, np.float64)
+    for name, description in METRICS.items():
+        v = np.asarray(values[name], np.float64)
+        kept = np.flatnonzero(np.isfinite(v))
+        armature[name] = float(v[kept[0]]) if kept.size else 0.0
+        armature.id_properties_ui(name).update(description=description)
+        old = fcurves.find(f'["{name}"]')
+        if old is not None:
+            fcurves.remove(old)
+        if kept.size == 0:
+            continue
+        curve = fcurves.new(f'["{name}"]', **{_group_keyword(action): "Retarget metrics"})
+        points = curve.keyframe_points
+        points.add(kept.size)
+        points.foreach_set("co", np.column_stack([frames[kept], v[kept]]).astype(np.float32).ravel())
+        points.foreach_set("interpolation", np.full(kept.size, LINEAR, np.int32))
+        curve.update()
+
+
 def metrics_image(png_path, name: str) -> bpy.types.Image:
     """Load a PNG (the retargeting's metrics plot) into the .blend as the image ``name``, packed so that
     it travels with the file. An existing image of that name is replaced: whatever showed it shows the
@@ -162,13 +196,32 @@ def _checked_frames(frames, n: int) -> np.ndarray:
     return frames
 
 
+LINEAR = bpy.types.Keyframe.bl_rna.properties["interpolation"].enum_items["LINEAR"].value
+
+
+def _slotted(action: bpy.types.Action) -> bool:
+    """Whether actions have slots here (Blender 4.4+), their F-curves in a channelbag per slot."""
+    return hasattr(action, "slots") and hasattr(anim_utils, "action_ensure_channelbag_for_slot")
+
+
+def _group_keyword(action: bpy.types.Action) -> str:
+    """The keyword of ``fcurves.new`` that names an F-curve's group."""
+    return "group_name" if _slotted(action) else "action_group"
+
+
+def _action_fcurves(action: bpy.types.Action, armature: bpy.types.Object):
+    """The F-curves of ``action`` that animate ``armature`` (its slot's, Blender 4.4+)."""
+    if _slotted(action):
+        return anim_utils.action_get_channelbag_for_slot(action, armature.animation_data.action_slot).fcurves
+    return action.fcurves
+
+
 def _fcurves(action: bpy.types.Action, armature: bpy.types.Object):
     """Where the action's F-curves go, the slot to assign with it (None before Blender 4.4) and the
     keyword naming an F-curve's group in ``fcurves.new``."""
-    ensure = getattr(anim_utils, "action_ensure_channelbag_for_slot", None)
-    if ensure is not None and hasattr(action, "slots"):  # Blender 4.4+: slotted actions
+    if _slotted(action):
         slot = action.slots.new(id_type="OBJECT", name=armature.name)
-        return ensure(action, slot).fcurves, slot, "group_name"
+        return anim_utils.action_ensure_channelbag_for_slot(action, slot).fcurves, slot, "group_name"
     action.id_root = "OBJECT"
     return action.fcurves, None, "action_group"
 

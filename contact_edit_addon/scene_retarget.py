@@ -43,7 +43,7 @@ from solver.retarget.job import JobOutcome, RetargetJob, run_job
 from . import bridge, scene_motion
 from .annotation import hand_pair, has_annotation
 from .bridge import BridgeError, PosedHand
-from .retarget_action import metrics_image, write_action
+from .retarget_action import metrics_image, write_action, write_metrics
 
 #: ``progress(stage, done, total)``: "read" (frames read), then :func:`solver.retarget.job.run_job`'s.
 Progress = Callable[[str, int, int], None]
@@ -156,10 +156,19 @@ def commit(
     replace_action: bool = True,
 ):
     """Key the result on the target's controls as one new action (named ``action_name``, or after the two
-    hands) and pack the metrics plot (when matplotlib made one); main thread. Returns (action, image or
-    None)."""
+    hands), with the per-frame metrics as curves of the armature's custom properties in it
+    (:func:`.retarget_action.write_metrics`), and pack the metrics plot (when matplotlib made one); main
+    thread. Returns (action, image or None)."""
     name = action_name or f"{job.names[2]} from {job.names[0]}"
-    action = write_action(posed, outcome.result.theta, job.frames, name, replace=replace_action)
+    r = outcome.result
+    action = write_action(posed, r.theta, job.frames, name, replace=replace_action)
+    mm = outcome.scale * 1e3
+    metrics = {"retarget_contacts_mm": r.contact_distance * mm, "retarget_markers_mm": r.marker_distance * mm}
+    for key in ("hand_object", "self_intersection"):
+        metrics[f"retarget_{key}_percent"] = (
+            getattr(r.intersections, key) if r.intersections is not None else np.full(len(r.theta), np.nan)
+        )
+    write_metrics(posed.armature_object(), action, job.frames, metrics)
     image = None
     if "plot" in outcome.paths:
         image = metrics_image(outcome.paths["plot"], f"{name} metrics")

@@ -101,6 +101,7 @@ def save(
     listed.clear()
     for i, name in enumerate(contacts):
         entry = listed.add()
+        entry.stored_name = name
         entry.name = name
         entry.color = PALETTE[i % len(PALETTE)]
         for key, value in kept.get(name, {}).items():
@@ -113,6 +114,39 @@ def save(
         entry.parent = contacts.links[name].parent if name in contacts.links else ""
         entry.pair = contacts.pairs.get(name, "")
     set_active(obj, min(active_index(obj, layer), len(listed) - 1), layer)
+    redraw()
+
+
+def rename(obj: bpy.types.Object, entry, scene: bpy.types.Scene) -> None:
+    """Rename the patch of a list entry whose name was edited (from ``entry.stored_name`` to
+    ``entry.name``) in its set, its children's entries and, for a contact patch, the pair recorded on the
+    scene's other object. A name the set cannot take (empty, or another patch's) is put back, as Blender
+    puts back names it refuses."""
+    old, new = entry.stored_name, entry.name
+    layer = "ANNOTATION" if entry.path_from_id().startswith("contact_edit.annotation_patches") else "CONTACTS"
+    contacts = load(obj, layer=layer)
+    try:
+        renamed = contacts.rename(old, new)
+    except ContactError:
+        entry.name = old
+        return
+    # The entries are edited in place: rebuilding the list would remove the entry being edited.
+    setattr(obj.contact_edit, LAYERS[layer][0], json.dumps(renamed.to_dict()))
+    entry.stored_name = new
+    for other in entries(obj, layer):
+        if other.parent == old:
+            other.parent = new
+    settings = scene.contact_edit
+    if layer == "CONTACTS" and old in contacts.pairs:
+        for counterpart in {settings.hand, settings.target} - {obj, None}:
+            theirs = load(counterpart, layer="CONTACTS")
+            changed = [k for k, v in theirs.pairs.items() if v == old]
+            for k in changed:
+                theirs = theirs.pair(k, new)
+            if changed:
+                counterpart.contact_edit.data = json.dumps(theirs.to_dict())
+                for e in entries(counterpart, "CONTACTS"):
+                    e.pair = theirs.pairs.get(e.name, "")
     redraw()
 
 

@@ -13,6 +13,7 @@ file onto a different mesh when asked to. It is validated on load.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -168,6 +169,23 @@ class ContactSet:
         patches = {k: v for k, v in self.patches.items() if k != name}
         links = {k: v for k, v in self.links.items() if k != name and v.parent != name}
         pairs = {k: v for k, v in self.pairs.items() if k != name}
+        return self._with(patches, links, pairs)
+
+    def rename(self, old: str, new: str) -> ContactSet:
+        """The same set with patch ``old`` called ``new`` (in its place in the order, its links and its
+        pair kept)."""
+        self[old]
+        if not isinstance(new, str) or not new:
+            raise ContactError(f"patch names must be non-empty strings, got {new!r}")
+        if new != old and new in self.patches:
+            raise ContactError(f"a patch named '{new}' already exists")
+
+        def named(n: str) -> str:
+            return new if n == old else n
+
+        patches = {named(k): v for k, v in self.patches.items()}
+        links = {named(k): dataclasses.replace(v, parent=named(v.parent)) for k, v in self.links.items()}
+        pairs = {named(k): v for k, v in self.pairs.items()}
         return self._with(patches, links, pairs)
 
     def parent(self, child: str, parent: str) -> ContactSet:

@@ -168,6 +168,44 @@ def test_contact_tools_run_headless_and_persist(tmp_path):
     assert out["persisted"] == ["palm", "tip"] and out["persisted_ball"] == ["palm@ball", "tip@ball"]
 
 
+def test_a_name_edited_in_the_patch_list_renames_the_patch(tmp_path):
+    """Typing a new name into the list renames the patch in its set: its child's parent and the pair
+    recorded on the other object follow, the annotation's list renames its own patches, and a name
+    another patch has is put back."""
+    out = run_blender(
+        """
+        select_disk(0.2, 0.1, 0.35)
+        bpy.ops.contact_edit.paint(name="palm", source="SELECTION")
+        select_disk(0.7, 0.1, 0.12)
+        bpy.ops.contact_edit.paint(name="tip", source="SELECTION")
+        bpy.ops.contact_edit.parent(child="tip", parent="palm")
+        bpy.ops.contact_edit.transfer(patch="palm", location=(0, 0, 2.0), direction=(1, 0, 0), suffix="@ball")
+        store.entries(hand)["palm"].name = "heel"
+        store.entries(hand)["tip"].name = "heel"  # taken
+        hand.contact_edit.layer = "ANNOTATION"
+        select_disk(-0.5, -0.5, 0.2)
+        bpy.ops.contact_edit.paint(name="contact", source="SELECTION")
+        store.entries(hand)["contact"].name = "index"
+        contacts = store.load(hand, layer="CONTACTS")
+        result(dict(hand=list(contacts), pairs=dict(contacts.pairs),
+                    links={c: l.parent for c, l in contacts.links.items()},
+                    entries=[(e.name, e.parent, e.pair) for e in store.entries(hand, "CONTACTS")],
+                    ball_pairs=dict(store.load(ball, layer="CONTACTS").pairs),
+                    ball_entries=[(e.name, e.pair) for e in store.entries(ball, "CONTACTS")],
+                    annotation=list(store.load(hand, layer="ANNOTATION")),
+                    annotation_entries=[e.name for e in store.entries(hand, "ANNOTATION")]))
+        """,
+        tmp_path,
+        setup=SETUP,
+    )
+    assert out["hand"] == ["heel", "tip"] and out["links"] == {"tip": "heel"}
+    assert out["pairs"] == {"heel": "palm@ball", "tip": "tip@ball"}
+    assert out["entries"] == [["heel", "", "palm@ball"], ["tip", "heel", "tip@ball"]]
+    assert out["ball_pairs"] == {"palm@ball": "heel", "tip@ball": "tip"}
+    assert out["ball_entries"] == [["palm@ball", "heel"], ["tip@ball", "tip"]]
+    assert out["annotation"] == out["annotation_entries"] == ["index"]
+
+
 def test_brush_strokes_become_points_inside_faces(tmp_path):
     out = run_blender(
         """

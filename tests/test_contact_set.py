@@ -111,6 +111,26 @@ def test_hierarchical_transfer_pairs_and_keeps_the_arrangement(hand):
         hand.transfer("palm", target, start, 1j, rename=lambda n: f"{n}@mug")
 
 
+def test_rename_keeps_order_links_pairs_and_edits(hand):
+    """Renamed, a patch keeps its place in the order, its children follow it under the new name, its pair
+    stays; the renamed set edits as the old one did; a clash or an empty name is refused, naming it."""
+    paired = hand.pair("palm", "palm@mug")
+    renamed = paired.rename("palm", "heel")
+    assert list(renamed) == ["heel" if n == "palm" else n for n in paired]
+    assert {c: link.parent for c, link in renamed.links.items()} == {
+        c: ("heel" if link.parent == "palm" else link.parent) for c, link in paired.links.items()
+    }
+    assert dict(renamed.pairs) == {"heel": "palm@mug"}
+    np.testing.assert_array_equal(
+        renamed.rotate("heel", 0.4)["nail"].positions(), paired.rotate("palm", 0.4)["nail"].positions()
+    )
+    with pytest.raises(ContactError, match="a patch named 'nail' already exists"):
+        paired.rename("palm", "nail")
+    with pytest.raises(ContactError, match="non-empty"):
+        paired.rename("palm", "")
+    assert list(paired.rename("palm", "palm")) == list(paired)
+
+
 def test_file_round_trip(hand, tmp_path):
     path = tmp_path / "hand.json"
     paired = hand.pair("palm", "palm@mug")

@@ -79,6 +79,11 @@ current = scene.frame_current
 r = outcome.result
 action = alien_rig.animation_data.action
 frames = keyed_frames(alien_rig)
+from bpy_extras import anim_utils
+bag = anim_utils.action_get_channelbag_for_slot(action, alien_rig.animation_data.action_slot)
+metric = bag.fcurves.find('["retarget_contacts_mm"]')
+metric_keys = [k.co[0] for k in metric.keyframe_points]
+metric_values = [metric.evaluate(f) for f in range({first}, {last} + 1)]
 out = {{}}
 for f in {check}:
     out[f"alien_{{f}}"] = blender_world(alien_obj, f)
@@ -93,7 +98,9 @@ result({{"seconds": seconds, "stages": sorted({{s for s, _, _ in calls}}), "acti
          "frames": frames, "scale": outcome.scale, "stopped_action": stopped_action, "kept": len(kept),
          "stored": len(stored), "resolved": sorted(p for p, t in kept.items() if os.stat(p).st_mtime_ns != t),
          "summary": outcome.summary(), "current": current, "warnings": list(r.warnings),
-         "full_calls": [d for s, d, _ in calls if s == "full"]}})
+         "full_calls": [d for s, d, _ in calls if s == "full"], "metric_keys": metric_keys,
+         "metric_values": metric_values, "metric_group": metric.group.name,
+         "metric_description": alien_rig.id_properties_ui("retarget_contacts_mm").as_dict()["description"]}})
 """
 
 
@@ -177,6 +184,17 @@ def test_summary_says_how_near_and_warns_in_words(retargeted):
     json.dumps(retargeted["warnings"])
 
 
+def test_the_metrics_are_keyed_beside_the_motion(retargeted):
+    """Each frame's contact distance (mm) is a key of the armature's custom property in the same action
+    (the Graph Editor plots it with no plotting library), at the frames that have contacts."""
+    d = retargeted["arrays"]["contact_distance"] * retargeted["scale"] * 1e3
+    has = np.isfinite(d)
+    assert retargeted["metric_keys"] == [float(f) for f in np.arange(FIRST, LAST + 1)[has]]
+    np.testing.assert_allclose(np.array(retargeted["metric_values"])[has], d[has], rtol=1e-6)
+    assert retargeted["metric_group"] == "Retarget metrics"
+    assert "transferred contacts" in retargeted["metric_description"]
+
+
 RIGIFY_KEYS = (1, 8, 12, 16, 20, 24)  # held_mug's keys, squeezed into 24 frames
 RIGIFY_CHECK = (1, 12, 18, 24)
 
@@ -187,7 +205,8 @@ target, rig = rigify.rigify_hand(scene.collection)
 outcome = scene_retarget.retarget_scene(scene, hand_obj, mug, target, 1, 24, folder={folder!r}, workers=2)
 data = rig.animation_data
 bag = anim_utils.action_get_channelbag_for_slot(data.action, data.action_slot)
-keyed = sorted({{curve.data_path.split('"')[1] for curve in bag.fcurves}})
+bones = [curve.data_path for curve in bag.fcurves if curve.data_path.startswith("pose.")]  # not the metrics
+keyed = sorted({{path.split('"')[1] for path in bones}})
 out = {{}}
 for f in {check}:
     out[f"target_{{f}}"] = blender_world(target, f)

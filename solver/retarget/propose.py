@@ -5,11 +5,11 @@ first version from the hand's armature so that the artist edits rather than star
 the finger chains under the wrist bone, names them (the thumb is the chain that starts nearest the wrist,
 then index, middle, ring and pinky in order away from it), takes each finger's palmar side to be the side
 it curls to at rest (so the bones' roll, which riggers set their own way, does not matter), and then lays
-out the curves and markers exactly as the built-in annotation of the
-procedural hands does (:func:`.annotate.hand_curves`, :func:`.annotate.hand_markers`), on a view of the
-rig shaped like a procedural hand: bone 0 the forearm (everything outside the wrist's subtree), bone 1 the
-palm (the wrist bone and every bone under it that is in no finger), then each finger's bones,
-with every bone's frame turned so that its z axis points palmar.
+out the curves and markers as the built-in annotation of the procedural hands does
+(:func:`.annotate.hand_curves`, :func:`.annotate.hand_markers`; a curve's ends where rays from its bones
+leave the skin), on a view of the rig shaped like a procedural hand: bone 0 the forearm (everything outside
+the wrist's subtree), bone 1 the palm (the wrist bone and every bone under it that is in no finger), then
+each finger's bones, with every bone's frame turned so that its z axis points palmar.
 
 The result is a :class:`geodesics.ContactSet` for :func:`.drawn.annotation_from_patches`: each curve a
 strip of skin along its axis (half as wide as the finger's girth), each marker a small area of skin; and

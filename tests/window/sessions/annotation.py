@@ -3,34 +3,13 @@ curves and markers from its armature in a worker thread (the operator's own call
 long it holds Blender up), the viewport then shows the annotation instead of the contacts, the layer
 switch shows the contacts again, and Ctrl+Z takes the proposal back in one step."""
 
-import time
-
 import bpy
 from brush import until
-from common import addon, example, open_contact_tab
+from common import addon, example, open_contact_tab, timed_calls
 from mathutils import Matrix
 from retarget import open_by_default
 
 from solver import hands
-
-
-def timed_calls() -> list[tuple]:
-    """Time every call of the Propose operator's invoke and modal from now on: (method, seconds)."""
-    op = addon("operators.annotation").CONTACT_EDIT_OT_annotation_propose
-    calls = []
-    invoke, modal = op.invoke, op.modal
-
-    def timed(name, method):
-        def call(self, context, event):  # Blender checks the arguments a method takes
-            began = time.monotonic()
-            status = method(self, context, event)
-            calls.append((name, time.monotonic() - began))
-            return status
-
-        return call
-
-    op.invoke, op.modal = timed("invoke", invoke), timed("modal", modal)
-    return calls
 
 
 def steps(s):
@@ -50,7 +29,7 @@ def steps(s):
     yield from s.move(*view.centre())
     yield from s.shot("contacts")
     store = addon("store")
-    calls = timed_calls()
+    calls = timed_calls(addon("operators.annotation").CONTACT_EDIT_OT_annotation_propose)
 
     with view.override():
         bpy.ops.contact_edit.annotation_propose("INVOKE_DEFAULT", object_name=hand_obj.name)

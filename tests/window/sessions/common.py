@@ -3,6 +3,7 @@ installed extension's own modules."""
 
 import importlib
 import json
+import time
 
 import bpy
 import numpy as np
@@ -76,3 +77,22 @@ def open_contact_tab(s, view):
     s.xdotool("keyup", "ctrl")
     s.record("categories", categories)
     yield from s.move(*view.centre())  # away from the sidebar, which must now redraw by itself
+
+
+def timed_calls(op) -> list[tuple]:
+    """Time every call of the operator class's invoke and modal from now on: (method, seconds, what it
+    returned, the stage it left if it has stages)."""
+    calls = []
+    invoke, modal = op.invoke, op.modal
+
+    def timed(name, method):
+        def call(self, context, event):  # Blender checks the arguments a method takes
+            began = time.monotonic()
+            status = method(self, context, event)
+            calls.append((name, time.monotonic() - began, sorted(status), getattr(self, "_stage", ("",))[0]))
+            return status
+
+        return call
+
+    op.invoke, op.modal = timed("invoke", invoke), timed("modal", modal)
+    return calls

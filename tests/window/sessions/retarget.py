@@ -11,7 +11,7 @@ import time
 import bpy
 import numpy as np
 from brush import until
-from common import addon, example, open_contact_tab
+from common import addon, example, open_contact_tab, timed_calls
 from mathutils import Matrix
 
 from geodesics import TriMesh
@@ -68,26 +68,6 @@ def watched(done, timeout: float):
     return found
 
 
-def timed_calls() -> list[tuple]:
-    """Time every call of the Retarget operator's invoke and modal from now on: (method, seconds, what
-    it returned, the stage it left)."""
-    op = addon("operators.retarget").CONTACT_EDIT_OT_retarget
-    calls = []
-    invoke, modal = op.invoke, op.modal
-
-    def timed(name, method):
-        def call(self, context, event):  # Blender checks the arguments a method takes
-            began = time.monotonic()
-            status = method(self, context, event)
-            calls.append((name, time.monotonic() - began, sorted(status), getattr(self, "_stage", ("",))[0]))
-            return status
-
-        return call
-
-    op.invoke, op.modal = timed("invoke", invoke), timed("modal", modal)
-    return calls
-
-
 def longest(calls, name: str) -> tuple:
     return max((call for call in calls if call[0] == name), key=lambda call: call[1])
 
@@ -122,7 +102,7 @@ def steps(s):
     open_by_default(addon("panels").VIEW3D_PT_contact_edit_retarget)
     yield from open_contact_tab(s, view)
     yield from s.move(*view.centre())
-    calls = timed_calls()
+    calls = timed_calls(addon("operators.retarget").CONTACT_EDIT_OT_retarget)
 
     # Started, then stopped with Esc while the frames are solved.
     with view.override():
