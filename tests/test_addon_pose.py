@@ -15,7 +15,7 @@ from mathutils import Matrix
 import contact_edit_addon
 contact_edit_addon.register()
 from contact_edit_addon import assets, bridge, posing, store
-from geodesics import ContactPatch, SurfacePoints, TriMesh, farthest_pair_axis
+from geodesics import ContactPatch, ContactSet, SurfacePoints, TriMesh, farthest_pair_axis
 from solver import hands, objects
 bpy.ops.wm.read_factory_settings(use_empty=True)
 scene = bpy.context.scene
@@ -293,7 +293,8 @@ def test_flex_to_contact_curls_selected_fingers_onto_the_object(tmp_path):
 
 
 def test_contacts_mirror_onto_the_other_hand(tmp_path):
-    """A patch painted on the right hand, mirrored, lands on the left hand's mirror-image points exactly."""
+    """A patch painted on the right hand, mirrored, lands on the left hand's mirror-image points exactly;
+    mirrored while the hand edits its annotation, a marker lands in the left hand's annotation."""
     out = run_blender(
         """
         hand.name = "Hand.R"
@@ -324,7 +325,13 @@ def test_contacts_mirror_onto_the_other_hand(tmp_path):
         local = (ours - A[:3, 3]) @ A[:3, :3] / np.linalg.norm(A[:3, 0]) ** 2
         expected = (local * [-1.0, 1.0, 1.0]) @ A[:3, :3].T + A[:3, 3]
         gap = float(np.abs(theirs - expected).max())
-        result(dict(finished=list(finished), names=list(mirrored), gap=gap))
+        # The annotation mirrors in its own layer, a marker staying a marker.
+        hand.contact_edit.layer = "ANNOTATION"
+        store.save(hand, ContactSet(contacts.mesh, {"spot.R": tip}), layer="ANNOTATION", markers={"spot.R"})
+        bpy.ops.contact_edit.mirror_contacts(scope="ALL")
+        annotation = [(e.name, e.marker) for e in store.entries(left, "ANNOTATION")]
+        result(dict(finished=list(finished), names=list(mirrored), gap=gap, annotation=annotation,
+                    contacts_after=list(store.load(left, layer="CONTACTS"))))
         """,
         tmp_path,
         setup=SETUP,
@@ -332,6 +339,7 @@ def test_contacts_mirror_onto_the_other_hand(tmp_path):
     assert out["finished"] == ["FINISHED"]
     assert out["names"] == ["tip.L"]
     assert out["gap"] < 1e-6
+    assert out["annotation"] == [["spot.L", True]] and out["contacts_after"] == ["tip.L"]
 
 
 # Pose recovery through the bridge (library path): targets are the hand's own palm-side points at a random

@@ -35,10 +35,12 @@ def counterpart(obj: bpy.types.Object) -> bpy.types.Object:
 
 
 def mirror_patches(source: bpy.types.Object, target: bpy.types.Object, names, overwrite: bool) -> list[str]:
-    """Mirror the named patches of ``source`` onto ``target`` (which may be ``source``, symmetric in itself);
-    returns the new patches' names."""
+    """Mirror the named patches of ``source`` onto ``target`` (which may be ``source``, symmetric in itself),
+    in the layer ``source`` edits (its contacts, or its annotation, markers staying markers); returns the
+    new patches' names."""
     space = mirror_space(source)
-    contacts = store.load(source)
+    layer = source.contact_edit.layer
+    contacts = store.load(source, layer=layer)
     if not len(contacts):
         raise bridge.BridgeError(f"'{source.name}' has no contact patches to mirror", source.name)
     ours = in_space(contacts.mesh, source, space)
@@ -46,12 +48,13 @@ def mirror_patches(source: bpy.types.Object, target: bpy.types.Object, names, ov
     if target == source:
         mirror, into = MirrorMap(ours), mine
     else:
-        existing = store.load(target)
+        existing = store.load(target, layer=layer)
         theirs = in_space(existing.mesh, target, space)
         mirror, into = MirrorMap(ours, theirs), ContactSet.from_dict(existing.to_dict(), theirs)
     mirrored = mirror_contacts(mine, mirror, names=names, into=into, overwrite=overwrite)
-    real = store.load(target).mesh
-    store.save(target, ContactSet.from_dict(mirrored.to_dict(), real))
+    real = store.load(target, layer=layer).mesh
+    markers = {flip_name(e.name) for e in store.entries(source, layer) if e.marker and e.name in names}
+    store.save(target, ContactSet.from_dict(mirrored.to_dict(), real), layer=layer, markers=markers)
     return [flip_name(n) for n in names]
 
 
