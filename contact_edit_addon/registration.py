@@ -1,4 +1,15 @@
-"""Registering and unregistering everything, in dependency order (and the reverse)."""
+"""Registering and unregistering everything, in dependency order (and the reverse).
+
+Once registered, the objects Python tracks for its cycle collector (about 110,000 in Blender 5.0 with the
+add-on loaded: Blender's, NumPy's, SciPy's and our modules, functions and classes, which live as long as
+the session) are frozen out of it (:func:`gc.freeze`). Otherwise every full collection walks them all,
+25-50 ms that fall inside whatever runs then: measured with ``contact-edit bench operators``, the longest
+of nine runs of each tool was 50-60 ms above its median (a solve's first pose 119 ms against a median of
+67 ms); frozen, a full collection takes under a millisecond. Freezing changes nothing else: reference
+counting still frees those objects, and only garbage cycles among them (a few, once) are never collected.
+"""
+
+import gc
 
 import bpy
 
@@ -39,9 +50,12 @@ def register() -> None:
     register_classes()
     for module in modules:
         module.register()
+    gc.collect()  # today's garbage goes first: what is frozen is never collected
+    gc.freeze()
 
 
 def unregister() -> None:
+    gc.unfreeze()  # the add-on's modules can go once unloaded
     for module in reversed(modules):
         module.unregister()
     unregister_classes()

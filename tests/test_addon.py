@@ -334,6 +334,26 @@ def test_a_mesh_carried_into_another_space_is_built_once_per_mesh_and_matrix(tmp
     assert out["gap"] == 0.0 and abs(out["moved_by"] - 0.01) < 1e-7  # Blender keeps float32 coordinates
 
 
+def test_registering_freezes_the_sessions_objects_out_of_the_cycle_collector(tmp_path):
+    """Registered, the add-on moves what Python tracks (Blender's, NumPy's and its own modules, functions
+    and classes) out of the cycle collector's way, so that a full collection no longer walks them inside
+    some tool's call; unregistered, it gives them back."""
+    out = run_blender(
+        """
+        import gc
+        import contact_edit_addon
+        before = gc.get_freeze_count()
+        contact_edit_addon.register()
+        frozen, tracked = gc.get_freeze_count(), len(gc.get_objects())
+        contact_edit_addon.unregister()
+        result(dict(before=before, frozen=frozen, tracked=tracked, after=gc.get_freeze_count()))
+        """,
+        tmp_path,
+    )
+    assert out["before"] == 0 and out["after"] == 0
+    assert out["frozen"] > 50_000 and out["tracked"] < 0.05 * out["frozen"], out
+
+
 def test_operators_explain_why_they_are_unavailable(tmp_path):
     out = run_blender(
         """
