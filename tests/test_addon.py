@@ -354,6 +354,36 @@ def test_registering_freezes_the_sessions_objects_out_of_the_cycle_collector(tmp
     assert out["frozen"] > 50_000 and out["tracked"] < 0.05 * out["frozen"], out
 
 
+def test_propose_annotation_refuses_what_it_cannot_read_naming_it(tmp_path):
+    """Proposing an annotation needs a hand skinned to an armature with finger chains: a plain mesh, a
+    wrist bone that is not there, and exporting before both hands have one are refused, saying why, and
+    nothing is changed."""
+    out = run_blender(
+        """
+        from contact_edit_addon import assets
+        from solver import hands
+        arm_hand, _ = assets.hand_objects(hands.make_hand("human"), "Human", scene.collection)
+        messages = []
+        for call in (lambda: bpy.ops.contact_edit.annotation_propose(object_name="Ball"),
+                     lambda: bpy.ops.contact_edit.annotation_propose(object_name="Human", wrist="nope"),
+                     lambda: bpy.ops.contact_edit.annotation_export(filepath="x.json")):
+            try:
+                call()
+            except RuntimeError as err:
+                messages.append(str(err))
+        result(dict(messages=messages, annotation=arm_hand.contact_edit.annotation,
+                    layer=arm_hand.contact_edit.layer))
+        """,
+        tmp_path,
+        setup=SETUP,
+    )
+    ball, wrist, export = out["messages"]
+    assert "'Ball' has no Armature modifier" in ball
+    assert "the armature has no bone 'nope' to take as the wrist" in wrist
+    assert "Choose the source hand in Retarget first" in export
+    assert out["annotation"] == "" and out["layer"] == "CONTACTS"
+
+
 def test_operators_explain_why_they_are_unavailable(tmp_path):
     out = run_blender(
         """
