@@ -132,6 +132,7 @@ def _may_have_annotation(context, obj) -> bool:
     settings = context.scene.contact_edit_retarget
     return (
         obj in (settings.source, settings.target)
+        or obj.contact_edit.layer == "ANNOTATION"  # never stuck in a layer without the switch
         or annotation.has_annotation(obj)
         or any(m.type == "ARMATURE" for m in obj.modifiers)
     )
