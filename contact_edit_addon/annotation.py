@@ -39,7 +39,7 @@ def has_annotation(obj: bpy.types.Object | None) -> bool:
 
 def proposal_work(hand: bpy.types.Object, wrist: str = "", palmar: str | None = None):
     """What :func:`propose` computes, as a function of plain data (for a worker thread), read now."""
-    mesh = store.load(hand, layer=LAYER).mesh
+    mesh = bridge.trimesh(hand)
     skeleton = bridge.hand_skeleton(hand)
 
     def work() -> Proposal:

@@ -102,8 +102,8 @@ class VIEW3D_PT_contact_edit_patches(SubPanel, bpy.types.Panel):
         layout.template_list(
             "CONTACT_EDIT_UL_patches", "", obj.contact_edit, listed, obj.contact_edit, active, rows=3
         )
-        if obj.contact_edit.layer == "ANNOTATION" and store.entries(obj):
-            entry = store.entries(obj)[min(store.active_index(obj), len(store.entries(obj)) - 1)]
+        entry = store.active_entry(obj)
+        if obj.contact_edit.layer == "ANNOTATION" and entry is not None:
             row = layout.row(align=True)
             row.prop(entry, "marker", toggle=True)
             if not entry.marker:

@@ -221,9 +221,13 @@ def _fcurves(action: bpy.types.Action, armature: bpy.types.Object):
     keyword naming an F-curve's group in ``fcurves.new``."""
     if _slotted(action):
         slot = action.slots.new(id_type="OBJECT", name=armature.name)
-        return anim_utils.action_ensure_channelbag_for_slot(action, slot).fcurves, slot, "group_name"
+        return (
+            anim_utils.action_ensure_channelbag_for_slot(action, slot).fcurves,
+            slot,
+            _group_keyword(action),
+        )
     action.id_root = "OBJECT"
-    return action.fcurves, None, "action_group"
+    return action.fcurves, None, _group_keyword(action)
 
 
 def _new_key_settings() -> tuple[int, int]:

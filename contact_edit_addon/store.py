@@ -160,11 +160,17 @@ def redraw(area_type: str | None = None) -> None:
                 area.tag_redraw()
 
 
-def active_patch_name(obj: bpy.types.Object, layer: str | None = None) -> str | None:
+def active_entry(obj: bpy.types.Object, layer: str | None = None):
+    """The patch list's active entry, or None for an empty list."""
     listed = entries(obj, layer)
     if not listed:
         return None
-    return listed[min(active_index(obj, layer), len(listed) - 1)].name
+    return listed[min(active_index(obj, layer), len(listed) - 1)]
+
+
+def active_patch_name(obj: bpy.types.Object, layer: str | None = None) -> str | None:
+    entry = active_entry(obj, layer)
+    return None if entry is None else entry.name
 
 
 #: The pairing file's format tag.

@@ -172,10 +172,10 @@ def hand_skeleton(hand: bpy.types.Object) -> Skeleton:
     index = {name: i for i, name in enumerate(rig.deform)}
     parents = []
     for name in rig.deform:
-        parent = bones[name].parent
-        while parent is not None and parent.name not in index:
-            parent = parent.parent
-        parents.append(-1 if parent is None else index[parent.name])
+        parent = rig.model.deform_parent(name)
+        while parent is not None and parent not in index:  # a deform bone that weights none of this mesh
+            parent = rig.model.deform_parent(parent)
+        parents.append(-1 if parent is None else index[parent])
     to_mesh = np.linalg.inv(rig.hand_to_armature)
     M = np.array([to_mesh @ np.array(bones[name].matrix_local) for name in rig.deform])
     scale = np.linalg.norm(M[:, :3, 0], axis=1)  # uniform (hand_rig checks)
