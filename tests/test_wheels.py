@@ -71,7 +71,9 @@ while not run.done and time.monotonic() - began < 600:
     time.sleep(0.05)
 outcome = run.outcome()
 action, _ = scene_retarget.commit(job, posed, outcome)
-print("RESULT " + json.dumps(dict(
+proposed = list(bpy.ops.contact_edit.annotation_propose(object_name=alien.name))
+proposed_curves = [e.name for e in alien.contact_edit.annotation_patches if not e.marker]
+print("RESULT " + json.dumps(dict(proposed=proposed, proposed_curves=proposed_curves,
     retargeted=outcome.summary(), action=action.name, keyed=alien_rig.animation_data.action == action,
     installed=list(installed), painted=list(painted), transferred=list(transferred), solved=list(solved),
     summary=scene.contact_edit.last_solve, failure=failure, modules=modules, numpy=numpy.__version__,
@@ -121,6 +123,9 @@ def test_the_extension_runs_on_its_bundled_wheels_alone_without_warnings(bpy_pyt
     assert "contacts in 1 patch pairs" in out["summary"] and out["summary"].endswith("converged")
     assert out["retargeted"].startswith("Retargeted 6 frames; contacts "), out["retargeted"]
     assert out["action"] == "Alien from Hand" and out["keyed"]
+    # An annotation proposed from the alien's armature on the wheels alone.
+    assert out["proposed"] == ["FINISHED"]
+    assert out["proposed_curves"] == ["thumb", "index", "middle", "palm", "palm_across"]
     # Every warning Python can raise is shown, hidden ones too; the only ones are DeprecationWarnings
     # (hidden by default) that SWIG before 4.3 puts in NLopt's bindings on Python 3.12+.
     shown = [w for w in out["warnings"] + stderr.splitlines() if "Warning" in w and not SWIG.search(w)]
