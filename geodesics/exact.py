@@ -201,15 +201,15 @@ class GeodesicField:
             mesh.is_boundary_vertex, theta > np.pi * (1 + 1e-9), theta > 2 * np.pi * (1 + 1e-9)
         )
         if targets is not None:  # a target is at most this far beyond each corner of its face
-            self._target_corners = mesh.faces[targets.faces]
-            self._target_gaps = np.abs(mesh.face_points[targets.faces] - targets.in_face_frame(mesh)[:, None])
+            self._target_corners = np.ascontiguousarray(mesh.faces[targets.faces].T)  # (3, k)
+            self._target_gaps = np.abs(mesh.face_points[targets.faces].T - targets.in_face_frame(mesh))
+            self._settled_bound = 0.0
         self._pending = np.empty(0, np.int64)
         self._pending_key = np.empty(0)
         self._ps = np.empty(0, np.int64)
         self._ps_birth = np.empty(0, np.int64)
         self._seed_sources()
         self._propagate()
-        self._by_face = None
 
     # ------------------------------------------------------------------ sources
 
@@ -268,7 +268,7 @@ class GeodesicField:
             self._ps, self._ps_birth = self._ps[fresh], self._ps_birth[fresh]
             ps_key = self.vertex_distance[self._ps]
             low = min(self._pending_key.min(initial=np.inf), ps_key.min(initial=np.inf))
-            if not np.isfinite(low) or low >= min(self._stop_bound(), self.max_distance):
+            if not np.isfinite(low) or low >= min(self._stop_bound(low), self.max_distance):
                 break
             cut = low + band
             take = ps_key < cut
@@ -285,14 +285,22 @@ class GeodesicField:
             if batch.size:
                 self._propagate_batch(batch)
 
-    def _stop_bound(self) -> float:
-        """An upper bound on every target's distance (inf until each target's face is reached)."""
+    def _stop_bound(self, low: float) -> float:
+        """An upper bound on every target's distance (inf until each target's face is reached).
+
+        Targets whose bound is already at most ``low`` are set aside, keeping only the largest such
+        bound: bounds only shrink, so the answer stays an upper bound and later calls read fewer."""
         if self.targets is None:
             return np.inf
-        if len(self.targets) == 0:
-            return 0.0
-        d = self.vertex_distance[self._target_corners]
-        return float(np.max(np.min(d + self._target_gaps, axis=1)))
+        bound = np.min(self.vertex_distance.take(self._target_corners) + self._target_gaps, axis=0)
+        below = bound <= low
+        if below.any():
+            self._settled_bound = max(self._settled_bound, float(bound[below].max()))
+            still = np.flatnonzero(~below)
+            self._target_corners = self._target_corners[:, still]
+            self._target_gaps = self._target_gaps[:, still]
+            bound = bound[still]
+        return max(self._settled_bound, float(bound.max(initial=-np.inf)))
 
     def _propagate_batch(self, w: np.ndarray) -> None:
         mesh, W = self.mesh, self.W
@@ -392,7 +400,7 @@ class GeodesicField:
         R = np.conj((Q3 - Q1) / e)
         with np.errstate(divide="ignore", invalid="ignore"):
             xs = (Il.real - (R.real - Il.real) * Il.imag / (R.imag - Il.imag)) / length
-        us = np.clip(np.where(np.isfinite(xs), xs, u0), u0, u1)
+        us = np.minimum(np.maximum(np.where(np.isfinite(xs), xs, u0), u0), u1)
         Xs = Q1 + us * E
         gap = np.minimum(wa - (d3 + np.abs(Q3 - Xa)) * grow, wb - (d3 + np.abs(Q3 - Xb)) * grow)
         gap = np.minimum(gap, sig + np.abs(I - Xs) - (d3 + np.abs(Q3 - Xs)) * grow)
@@ -402,7 +410,7 @@ class GeodesicField:
         kept = {key: val[keep] for key, val in cols.items()}
         idx = self.W.append(**kept)
         # Lower bound on any distance this window's rays can give: sigma + distance to the interval.
-        proj = np.clip(Il.real[keep] / length[keep], kept["u0"], kept["u1"])
+        proj = np.minimum(np.maximum(Il.real[keep] / length[keep], kept["u0"]), kept["u1"])
         key = kept["sigma"] + np.abs(I[keep] - (Q1[keep] + proj * E[keep]))
         self._pending = np.concatenate([self._pending, idx])
         self._pending_key = np.concatenate([self._pending_key, key])
@@ -519,20 +527,22 @@ class GeodesicField:
 
     # ------------------------------------------------------------------ queries
 
-    def _windows_by_face(self):
-        if self._by_face is None or self._by_face[2] != self.W.size:
-            face = self.W.he // 3
-            order = np.argsort(face, kind="stable")
-            start = np.searchsorted(face[order], np.arange(self.mesh.n_faces + 1))
-            self._by_face = (order, start, self.W.size)
-        return self._by_face[:2]
+    def _windows_entering(self, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For each of ``faces`` (k,): ``entry`` (n,) its index, ``w`` (n,) a window entering it. Only the
+        windows of those faces are sorted: a query usually touches a small part of the mesh."""
+        face = self.W.he // 3
+        wanted = np.zeros(self.mesh.n_faces, bool)
+        wanted[faces] = True
+        order = np.flatnonzero(wanted[face])
+        order = order[np.argsort(face[order], kind="stable")]
+        start = np.searchsorted(face[order], np.arange(self.mesh.n_faces + 1))
+        counts = start[faces + 1] - start[faces]
+        entry, at = ranges(start[faces], counts)
+        return entry, order[at]
 
     def _best_windows(self, faces: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """For points z in the frames of ``faces``: the best window entering each face and its distance."""
-        order, start = self._windows_by_face()
-        counts = start[faces + 1] - start[faces]
-        entry, at = ranges(start[faces], counts)
-        w = order[at]
+        entry, w = self._windows_entering(faces)
         W = self.W
         p = z[entry]
         I = W.img[w]
@@ -727,4 +737,4 @@ def _unit(z):
 def _hit(I, X, P0, P1):
     """Parameter t along P0 -> P1 where the ray from I through X crosses that line (clipped to [0, 1])."""
     d = X - I
-    return np.clip(_cross(d, I - P0) / _cross(d, P1 - P0), 0.0, 1.0)
+    return np.minimum(np.maximum(_cross(d, I - P0) / _cross(d, P1 - P0), 0.0), 1.0)
