@@ -334,47 +334,38 @@ class GeodesicField:
             keep_right[split[worse & (us < best_u - RAY_SLACK)]] = False
             keep_left[split[worse & (us > best_u + RAY_SLACK)]] = False
 
-        children = []
-        for side, keep in (("left", keep_left), ("right", keep_right)):
-            s = np.flatnonzero(keep)
-            if s.size == 0:
-                continue
-            if side == "left":  # rays between u0 and uc leave through edge C -> A
-                h_out = hp[s]
-                X_near = A[s] + u0[s] * AB[s]
-                X_far = A[s] + np.minimum(u1[s], uc[s]) * AB[s]
-                t_near = _hit(I[s], X_near, C[s], A[s])
-                t_far = np.where(uc[s] < u1[s], 0.0, _hit(I[s], X_far, C[s], A[s]))
-                s0, s1 = 1 - t_near, 1 - t_far
-            else:  # rays between uc and u1 leave through edge B -> C
-                h_out = hn[s]
-                X_near = A[s] + np.maximum(u0[s], uc[s]) * AB[s]
-                X_far = A[s] + u1[s] * AB[s]
-                t_near = np.where(uc[s] > u0[s], 1.0, _hit(I[s], X_near, B[s], C[s]))
-                t_far = _hit(I[s], X_far, B[s], C[s])
-                s0, s1 = 1 - t_near, 1 - t_far
-            tw = mesh.twin[h_out]
-            ok = (tw >= 0) & (s1 - s0 > MIN_WIDTH)
-            s, h_out, s0, s1 = s[ok], h_out[ok], s0[ok], s1[ok]
-            ws = w[s]
-            children.append(
-                dict(
-                    he=mesh.twin[h_out],
-                    u0=s0,
-                    u1=s1,
-                    img=mesh.halfedge_offset[h_out] + mesh.halfedge_rotation[h_out] * I[s],
-                    sigma=sig[s],
-                    ps=W.ps[ws],
-                    birth=W.birth[ws],
-                    rot=W.rot[ws] * mesh.halfedge_rotation[h_out],
-                    corner=W.corner[ws],
-                    label=W.label[ws],
-                    parent=ws,
-                    direct=np.zeros(s.size, bool),
-                )
-            )
-        if children:
-            self._add_windows(**{key: np.concatenate([c[key] for c in children]) for key in children[0]})
+        # Children: rays between u0 and uc leave through edge C -> A (left), between uc and u1 through
+        # edge B -> C (right); where the ray through C bounds a child, it ends exactly at C.
+        left, right = np.flatnonzero(keep_left), np.flatnonzero(keep_right)
+        s = np.concatenate([left, right])
+        if s.size == 0:
+            return
+        on_right = np.arange(s.size) >= left.size
+        Is, As, ABs, us, u0s, u1s = I[s], A[s], AB[s], uc[s], u0[s], u1[s]
+        P0, P1 = np.where(on_right, B[s], C[s]), np.where(on_right, C[s], A[s])
+        near = np.where(on_right, np.maximum(u0s, us), u0s)
+        far = np.where(on_right, u1s, np.minimum(u1s, us))
+        t_near = np.where(on_right & (us > u0s), 1.0, _hit(Is, As + near * ABs, P0, P1))
+        t_far = np.where(~on_right & (us < u1s), 0.0, _hit(Is, As + far * ABs, P0, P1))
+        s0, s1 = 1 - t_near, 1 - t_far
+        h_out = np.where(on_right, hn[s], hp[s])
+        ok = np.flatnonzero((mesh.twin[h_out] >= 0) & (s1 - s0 > MIN_WIDTH))
+        s, h_out, s0, s1, Is = s[ok], h_out[ok], s0[ok], s1[ok], Is[ok]
+        ws = w[s]
+        self._add_windows(
+            he=mesh.twin[h_out],
+            u0=s0,
+            u1=s1,
+            img=mesh.halfedge_offset[h_out] + mesh.halfedge_rotation[h_out] * Is,
+            sigma=sig[s],
+            ps=W.ps[ws],
+            birth=W.birth[ws],
+            rot=W.rot[ws] * mesh.halfedge_rotation[h_out],
+            corner=W.corner[ws],
+            label=W.label[ws],
+            parent=ws,
+            direct=np.zeros(s.size, bool),
+        )
 
     def _add_windows(self, **cols) -> None:
         """Drop new edge windows that a strictly shorter path beats everywhere (rules 1-3); queue the rest."""
