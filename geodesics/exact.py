@@ -15,6 +15,7 @@ only when a real, strictly shorter path exists everywhere that window could reac
 * Rule 3 (ICH, made exact): the face's third vertex beats the window on the whole interval. We take the
   exact minimum over the interval (the difference of two distances to points on either side of a line
   has at most one interior minimum, found by reflecting the vertex), where ICH checks one endpoint.
+* Rules 1-3 judge a window when it leaves the queue, with every vertex distance found by then.
 * One angle, one split (ICH): of the windows that see a vertex through the same edge, only the one
   giving the vertex its shortest distance keeps the children on both sides; a worse one keeps only the
   child on the side away from the better path (its other rays would have to cross a shorter path).
@@ -44,6 +45,8 @@ RAY_SLACK = 1e-9
 MIN_WIDTH = 1e-12
 #: Processing band, in mean edge lengths.
 BAND = 3.0
+#: At most this many windows' room is reserved before propagating (about 0.4 GB).
+WINDOWS_RESERVED = 1 << 22
 
 
 def _cross(a, b):
@@ -190,7 +193,9 @@ class GeodesicField:
                     "so no geodesic reaches them"
                 )
         n = mesh.n_vertices
-        self.W = _Windows()
+        # Room for the windows a whole mesh usually needs (up to a few dozen per face), reserved up front:
+        # memory is only touched as it fills, and the arrays are not copied each time they would double.
+        self.W = _Windows(min(48 * mesh.n_faces, WINDOWS_RESERVED))
         self.vertex_distance = np.full(n, np.inf)
         self.vertex_parent = np.full(n, -1, np.int64)
         self._birth = np.zeros(n, np.int64)
@@ -244,7 +249,9 @@ class GeodesicField:
         ok = ~on_edge & (mesh.twin[h] >= 0)
         row, col = np.nonzero(ok)
         hh = h[row, col]
-        self._add_windows(
+        Pf = P.ravel()
+        self._queue(
+            _to_segment(pos[row], Pf[hh], Pf[mesh.halfedge_next[hh]], 0.0, 1.0),
             he=mesh.twin[hh],
             u0=np.zeros(hh.size),
             u1=np.ones(hh.size),
@@ -303,24 +310,28 @@ class GeodesicField:
         return max(self._settled_bound, float(bound.max(initial=-np.inf)))
 
     def _propagate_batch(self, w: np.ndarray) -> None:
+        """Propagate windows ``w`` across their faces: drop those a shorter path beats everywhere (rules
+        1-3, judged now, with the vertex distances found since they were queued), relax the opposite
+        vertex and queue the children on the two far edges."""
         mesh, W = self.mesh, self.W
-        Pf = mesh.face_points.ravel()
+        Pf, tail = mesh.face_points.ravel(), mesh.halfedge_tail
         he = W.he[w]
         hn, hp = mesh.halfedge_next[he], mesh.halfedge_prev[he]
         A, B, C = Pf[he], Pf[hn], Pf[hp]
         I, sig, u0, u1 = W.img[w], W.sigma[w], W.u0[w], W.u1[w]
         AB = B - A
+        opposite = tail[hp]
+        alive = self._unbeaten(A, AB, C, I, sig, u0, u1, tail[he], tail[hn], opposite)
         IC = C - I
         uc = _cross(IC, I - A) / _cross(IC, AB)  # where the ray through the opposite vertex crosses AB
         dc = sig + np.abs(IC)
-        opposite = mesh.halfedge_tail[hp]
 
-        sees_c = (uc >= u0 - RAY_SLACK) & (uc <= u1 + RAY_SLACK)
+        sees_c = alive & (uc >= u0 - RAY_SLACK) & (uc <= u1 + RAY_SLACK)
         self._relax(opposite[sees_c], dc[sees_c], w[sees_c])
 
         # One angle, one split.
-        keep_left = uc > u0 + MIN_WIDTH
-        keep_right = uc < u1 - MIN_WIDTH
+        keep_left = alive & (uc > u0 + MIN_WIDTH)
+        keep_right = alive & (uc < u1 - MIN_WIDTH)
         split = np.flatnonzero(keep_left & keep_right)
         if split.size:
             hs, ds, us = he[split], dc[split], uc[split]
@@ -347,15 +358,15 @@ class GeodesicField:
         far = np.where(on_right, u1s, np.minimum(u1s, us))
         t_near = np.where(on_right & (us > u0s), 1.0, _hit(Is, As + near * ABs, P0, P1))
         t_far = np.where(~on_right & (us < u1s), 0.0, _hit(Is, As + far * ABs, P0, P1))
-        s0, s1 = 1 - t_near, 1 - t_far
         h_out = np.where(on_right, hn[s], hp[s])
-        ok = np.flatnonzero((mesh.twin[h_out] >= 0) & (s1 - s0 > MIN_WIDTH))
-        s, h_out, s0, s1, Is = s[ok], h_out[ok], s0[ok], s1[ok], Is[ok]
+        ok = np.flatnonzero((mesh.twin[h_out] >= 0) & (t_near - t_far > MIN_WIDTH))
+        s, h_out, t_near, t_far, Is, P0, P1 = (a[ok] for a in (s, h_out, t_near, t_far, Is, P0, P1))
         ws = w[s]
-        self._add_windows(
+        self._queue(
+            sig[s] + _to_segment(Is, P0, P1, t_far, t_near),
             he=mesh.twin[h_out],
-            u0=s0,
-            u1=s1,
+            u0=1 - t_near,
+            u1=1 - t_far,
             img=mesh.halfedge_offset[h_out] + mesh.halfedge_rotation[h_out] * Is,
             sigma=sig[s],
             ps=W.ps[ws],
@@ -367,18 +378,13 @@ class GeodesicField:
             direct=np.zeros(s.size, bool),
         )
 
-    def _add_windows(self, **cols) -> None:
-        """Drop new edge windows that a strictly shorter path beats everywhere (rules 1-3); queue the rest."""
-        mesh = self.mesh
-        Pf, tail = mesh.face_points.ravel(), mesh.halfedge_tail
-        he, u0, u1, I, sig = cols["he"], cols["u0"], cols["u1"], cols["img"], cols["sigma"]
-        hn, hp = mesh.halfedge_next[he], mesh.halfedge_prev[he]
-        Q1, Q3 = Pf[he], Pf[hp]
-        E = Pf[hn] - Q1
-        length = np.abs(E)
+    def _unbeaten(self, A, AB, C, I, sig, u0, u1, va, vb, vc) -> np.ndarray:
+        """(n,) bool: False for edge windows (interval [u0, u1] of edge A -> A + AB, facing corner C; the
+        edge's vertices va, vb and the corner's vc) that a strictly shorter path beats everywhere."""
         vd = self.vertex_distance
-        d1, d2, d3 = vd[tail[he]], vd[tail[hn]], vd[tail[hp]]
-        Xa, Xb = Q1 + u0 * E, Q1 + u1 * E
+        d1, d2, d3 = vd[va], vd[vb], vd[vc]
+        length = np.abs(AB)
+        Xa, Xb = A + u0 * AB, A + u1 * AB
         wa, wb = sig + np.abs(I - Xa), sig + np.abs(I - Xb)
         grow = 1 + PRUNE_MARGIN
         # Rules 1 and 2: an edge endpoint reaches the far end of the interval along the edge.
@@ -386,24 +392,21 @@ class GeodesicField:
         # Rule 3: exact minimum over the interval of (window distance) - (distance via the third vertex).
         # Along the edge it has one interior extremum, where the line from the image to the vertex's
         # mirror image (across the edge) crosses it.
-        e = E / length
-        Il = (I - Q1) / e
-        R = np.conj((Q3 - Q1) / e)
+        e = AB / length
+        Il = (I - A) / e
+        R = np.conj((C - A) / e)
         with np.errstate(divide="ignore", invalid="ignore"):
             xs = (Il.real - (R.real - Il.real) * Il.imag / (R.imag - Il.imag)) / length
         us = np.minimum(np.maximum(np.where(np.isfinite(xs), xs, u0), u0), u1)
-        Xs = Q1 + us * E
-        gap = np.minimum(wa - (d3 + np.abs(Q3 - Xa)) * grow, wb - (d3 + np.abs(Q3 - Xb)) * grow)
-        gap = np.minimum(gap, sig + np.abs(I - Xs) - (d3 + np.abs(Q3 - Xs)) * grow)
-        keep = ~(dead | (gap > 0))
-        if not np.any(keep):
-            return
-        kept = {key: val[keep] for key, val in cols.items()}
-        idx = self.W.append(**kept)
-        # Lower bound on any distance this window's rays can give: sigma + distance to the interval.
-        proj = np.minimum(np.maximum(Il.real[keep] / length[keep], kept["u0"]), kept["u1"])
-        key = kept["sigma"] + np.abs(I[keep] - (Q1[keep] + proj * E[keep]))
-        self._pending = np.concatenate([self._pending, idx])
+        Xs = A + us * AB
+        gap = np.minimum(wa - (d3 + np.abs(C - Xa)) * grow, wb - (d3 + np.abs(C - Xb)) * grow)
+        gap = np.minimum(gap, sig + np.abs(I - Xs) - (d3 + np.abs(C - Xs)) * grow)
+        return ~(dead | (gap > 0))
+
+    def _queue(self, key: np.ndarray, **cols) -> None:
+        """Store new edge windows and queue them by ``key``, a lower bound on any distance their rays
+        give (the pruning rules judge them when they leave the queue)."""
+        self._pending = np.concatenate([self._pending, self.W.append(**cols)])
         self._pending_key = np.concatenate([self._pending_key, key])
 
     def _relax(self, vertices: np.ndarray, dist: np.ndarray, parent: np.ndarray) -> None:
@@ -501,7 +504,8 @@ class GeodesicField:
         first_edge = (B - pu[ok]) / np.abs(B - pu[ok])
         t0 = _hit(pu[ok], pu[ok] + first_edge * np.exp(1j * a0[ok]), B, C)
         t1 = _hit(pu[ok], pu[ok] + first_edge * np.exp(1j * a1[ok]), B, C)
-        self._add_windows(
+        self._queue(
+            sigma[ok] + _to_segment(pu[ok], B, C, t0, t1),
             he=mesh.twin[opp],
             u0=1 - t1,
             u1=1 - t0,
@@ -723,6 +727,13 @@ def _unit(z):
     z = np.asarray(z, dtype=np.complex128)
     length = np.abs(z)
     return np.where(length > 0, z / np.where(length > 0, length, 1.0), 0)
+
+
+def _to_segment(I, P0, P1, t0, t1):
+    """Distance from I to the part [t0, t1] of segment P0 -> P1."""
+    D = P1 - P0
+    t = ((I - P0) * np.conj(D)).real / (D.real**2 + D.imag**2)
+    return np.abs(I - (P0 + np.minimum(np.maximum(t, t0), t1) * D))
 
 
 def _hit(I, X, P0, P1):
