@@ -1,10 +1,10 @@
-"""Small array helpers shared by every package: read-only arrays and ragged index ranges."""
+"""Small array helpers shared by every package: read-only arrays, ragged index ranges, grouped minima."""
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["ranges", "readonly"]
+__all__ = ["ranges", "readonly", "smallest_per_key"]
 
 
 def readonly(a) -> np.ndarray:
@@ -45,3 +45,24 @@ def ranges(starts, counts) -> tuple[np.ndarray, np.ndarray]:
     owner = np.repeat(np.arange(counts.size), counts)
     index = np.arange(owner.size) + (starts - (np.cumsum(counts) - counts))[owner]
     return owner, index
+
+
+def smallest_per_key(keys: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Where each distinct key has its smallest value (the first such entry on a tie), by key.
+
+    Parameters
+    ----------
+    keys : (n,) int ndarray
+    values : (n,) float ndarray
+
+    Returns
+    -------
+    (u,) int64 ndarray
+        One index into ``keys`` per distinct key, in increasing key order.
+    """
+    order = np.lexsort((values, keys))
+    sorted_keys = keys[order]
+    first = np.empty(order.size, bool)
+    first[:1] = True
+    np.not_equal(sorted_keys[1:], sorted_keys[:-1], out=first[1:])
+    return order[first]

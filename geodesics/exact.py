@@ -31,7 +31,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .arrays import ranges
+from .arrays import ranges, smallest_per_key
 from .errors import GeodesicError, describe_ids
 from .mesh import TriMesh
 from .points import SurfacePoints
@@ -335,8 +335,7 @@ class GeodesicField:
         split = np.flatnonzero(keep_left & keep_right)
         if split.size:
             hs, ds, us = he[split], dc[split], uc[split]
-            order = np.lexsort((ds, hs))
-            first = order[np.r_[True, hs[order][1:] != hs[order][:-1]]]
+            first = smallest_per_key(hs, ds)
             better = ds[first] < self._split_d[hs[first]]
             self._split_d[hs[first[better]]] = ds[first[better]]
             self._split_u[hs[first[better]]] = us[first[better]]
@@ -413,8 +412,7 @@ class GeodesicField:
         """Lower vertex distances where a candidate is shorter; queue bending vertices as pseudosources."""
         if vertices.size == 0:
             return
-        order = np.lexsort((dist, vertices))
-        first = order[np.r_[True, vertices[order][1:] != vertices[order][:-1]]]
+        first = smallest_per_key(vertices, dist)
         v, d, p = vertices[first], dist[first], parent[first]
         better = d < self.vertex_distance[v] * (1 - 1e-14)
         v, d, p = v[better], d[better], p[better]
@@ -554,8 +552,7 @@ class GeodesicField:
         best = np.full(faces.size, -1, np.int64)
         dist = np.full(faces.size, np.inf)
         if value.size:
-            o = np.lexsort((value, entry))
-            first = o[np.r_[True, entry[o][1:] != entry[o][:-1]]]
+            first = smallest_per_key(entry, value)
             best[entry[first]] = w[first]
             dist[entry[first]] = value[first]
         best[~np.isfinite(dist)] = -1

@@ -1,9 +1,9 @@
-"""The shared array helpers (geodesics.arrays): ragged ranges and read-only arrays."""
+"""The shared array helpers (geodesics.arrays): ragged ranges, read-only arrays, grouped minima."""
 
 import numpy as np
 import pytest
 
-from geodesics.arrays import ranges, readonly
+from geodesics.arrays import ranges, readonly, smallest_per_key
 
 
 def test_ranges_concatenate_aranges_with_their_owners():
@@ -37,3 +37,16 @@ def test_readonly_flags_the_same_array():
         a[0] = 1.0
     b = readonly([1, 2, 3])
     assert isinstance(b, np.ndarray) and not b.flags.writeable
+
+
+def test_smallest_per_key_matches_a_python_loop_and_breaks_ties_by_position():
+    rng = np.random.default_rng(1)
+    keys = rng.integers(0, 30, 400)
+    values = rng.integers(0, 5, 400).astype(float)  # many ties
+    got = smallest_per_key(keys, values)
+    expected = [min(np.flatnonzero(keys == k), key=lambda i: (values[i], i)) for k in np.unique(keys)]
+    np.testing.assert_array_equal(got, expected)
+
+
+def test_smallest_per_key_of_nothing_is_empty():
+    assert smallest_per_key(np.empty(0, np.int64), np.empty(0)).shape == (0,)
