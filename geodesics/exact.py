@@ -523,12 +523,13 @@ class GeodesicField:
     def _windows_entering(self, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """For each of ``faces`` (k,): ``entry`` (n,) its index, ``w`` (n,) a window entering it. Only the
         windows of those faces are sorted: a query usually touches a small part of the mesh."""
-        face = self.W.he // 3
-        wanted = np.zeros(self.mesh.n_faces, bool)
+        wanted = np.zeros((self.mesh.n_faces, 3), bool)  # by halfedge, to read it at the windows' own
         wanted[faces] = True
-        order = np.flatnonzero(wanted[face])
-        order = order[np.argsort(face[order], kind="stable")]
-        start = np.searchsorted(face[order], np.arange(self.mesh.n_faces + 1))
+        order = np.flatnonzero(wanted.ravel()[self.W.he])
+        face = self.W.he[order] // 3
+        sort = np.argsort(face, kind="stable")
+        order = order[sort]
+        start = np.searchsorted(face[sort], np.arange(self.mesh.n_faces + 1))
         counts = start[faces + 1] - start[faces]
         entry, at = ranges(start[faces], counts)
         return entry, order[at]
@@ -541,9 +542,8 @@ class GeodesicField:
         I = W.img[w]
         value = W.sigma[w] + np.abs(p - I)
         he = W.he[w]
-        P = self.mesh.face_points
-        f, k = he // 3, he % 3
-        A, B = P[f, k], P[f, (k + 1) % 3]
+        Pf = self.mesh.face_points.ravel()
+        A, B = Pf[he], Pf[self.mesh.halfedge_next[he]]
         d = p - I
         with np.errstate(divide="ignore", invalid="ignore"):
             u = _cross(d, I - A) / _cross(d, B - A)
@@ -575,12 +575,13 @@ class GeodesicField:
         best[rest], dist[rest] = self._best_windows(points.faces[rest], z[rest])
         # A point on an edge is also reached from the other face of that edge.
         other = rest[(e[rest] >= 0) & (mesh.twin[np.maximum(e[rest], 0)] >= 0)]
-        h = e[other]
-        b2, d2 = self._best_windows(
-            mesh.twin[h] // 3, mesh.halfedge_offset[h] + mesh.halfedge_rotation[h] * z[other]
-        )
-        better = d2 < dist[other]
-        best[other[better]], dist[other[better]] = b2[better], d2[better]
+        if other.size:
+            h = e[other]
+            b2, d2 = self._best_windows(
+                mesh.twin[h] // 3, mesh.halfedge_offset[h] + mesh.halfedge_rotation[h] * z[other]
+            )
+            better = d2 < dist[other]
+            best[other[better]], dist[other[better]] = b2[better], d2[better]
         reached = best >= 0
         face = np.where(reached, W.he[np.maximum(best, 0)] // 3, points.faces)
         here = z.copy()
