@@ -45,8 +45,8 @@ RAY_SLACK = 1e-9
 MIN_WIDTH = 1e-12
 #: Processing band, in mean edge lengths.
 BAND = 3.0
-#: At most this many windows' room is reserved before propagating (about 0.4 GB).
-WINDOWS_RESERVED = 1 << 22
+#: At most this many windows' room is reserved before propagating (about 0.1 GB; more grows as needed).
+WINDOWS_RESERVED = 1 << 20
 
 
 def _cross(a, b):
