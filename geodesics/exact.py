@@ -523,7 +523,7 @@ class GeodesicField:
     def _windows_entering(self, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """For each of ``faces`` (k,): ``entry`` (n,) its index, ``w`` (n,) a window entering it. Only the
         windows of those faces are sorted: a query usually touches a small part of the mesh."""
-        wanted = np.zeros((self.mesh.n_faces, 3), bool)  # by halfedge, to read it at the windows' own
+        wanted = np.zeros((self.mesh.n_faces, 3), bool)  # per halfedge: each window reads its own
         wanted[faces] = True
         order = np.flatnonzero(wanted.ravel()[self.W.he])
         face = self.W.he[order] // 3
@@ -728,10 +728,12 @@ def _unit(z):
 
 
 def _to_segment(I, P0, P1, t0, t1):
-    """Distance from I to the part [t0, t1] of segment P0 -> P1."""
+    """Distance from I to the part of segment P0 -> P1 between parameters t0 and t1 (in either order): a
+    window's queue key, which must never exceed the distance to any of its points."""
     D = P1 - P0
     t = ((I - P0) * np.conj(D)).real / (D.real**2 + D.imag**2)
-    return np.abs(I - (P0 + np.minimum(np.maximum(t, t0), t1) * D))
+    t = np.minimum(np.maximum(t, np.minimum(t0, t1)), np.maximum(t0, t1))
+    return np.abs(I - (P0 + t * D))
 
 
 def _hit(I, X, P0, P1):

@@ -54,6 +54,43 @@ def test_distances_equal_exact_mmp_between_surface_points(curved):
     np.testing.assert_allclose(got, expected, rtol=1e-8, err_msg=name)
 
 
+def test_stopping_once_nearby_targets_are_settled_changes_nothing(curved):
+    """A field given targets stops as soon as they are settled (setting settled ones aside as it goes,
+    queueing windows by a lower bound on their distance): it answers exactly what the whole field does."""
+    name, mesh = curved
+    rng = np.random.default_rng(21)
+    origin, pool = random_points(mesh, 1, rng), random_points(mesh, 400, rng)
+    whole = GeodesicField(mesh, origin)
+    distance = whole.query(pool).distances
+    # Single targets stop closest to the edge of what is settled; groups set targets aside as they go.
+    groups = [np.array([i]) for i in np.argsort(distance)[::50]]
+    groups += [np.flatnonzero(distance < share * distance.max()) for share in (0.1, 0.3, 0.6)]
+    for group in groups:
+        near = pool[group]
+        early = GeodesicField(mesh, origin, near)
+        assert early.W.size < whole.W.size, name  # it did stop early
+        expected, got = whole.query(near), early.query(near)
+        np.testing.assert_allclose(got.distances, expected.distances, rtol=1e-12, err_msg=name)
+        np.testing.assert_allclose(got.initial_directions, expected.initial_directions, atol=1e-9)
+        np.testing.assert_allclose(got.final_directions, expected.final_directions, atol=1e-9)
+
+
+def test_a_window_is_queued_by_its_nearest_point_to_the_pseudosource():
+    """The queue key is the distance from the pseudosource's image to the nearest point of the window's
+    interval (either way round): never more, or the field could stop before a target is settled."""
+    from geodesics.exact import _to_segment
+
+    rng = np.random.default_rng(22)
+    n = 500
+    I, P0, P1 = (rng.normal(size=n) + 1j * rng.normal(size=n) for _ in range(3))
+    t0, t1 = rng.uniform(-0.2, 1.2, (2, n))
+    samples = np.linspace(t0, t1, 2001)  # (2001, n), both ends included
+    nearest = np.abs(I - (P0 + samples * (P1 - P0))).min(axis=0)
+    key = _to_segment(I, P0, P1, t0, t1)
+    assert np.all(key <= nearest + 1e-12)
+    np.testing.assert_allclose(key, nearest, atol=2e-3)  # and the sampling finds nothing nearer
+
+
 def test_distances_never_exceed_edge_paths(curved):
     _, mesh = curved
     source = 7
