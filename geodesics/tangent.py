@@ -122,9 +122,9 @@ def from_face_frame(mesh: TriMesh, points: SurfacePoints, faces, z_face) -> np.n
     at = v >= 0
     if np.any(at):
         z[at] = face_to_vertex(mesh, corner_halfedges(mesh, faces[at], v[at]), z[at])
-    rest = ~at
-    if np.any(rest):
-        z[rest] *= face_rotation(mesh, faces[rest], points.faces[rest])
+    moved = np.flatnonzero(~at & (faces != points.faces))  # in another face than the point's own
+    if moved.size:
+        z[moved] *= face_rotation(mesh, faces[moved], points.faces[moved])
     return z
 
 
