@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from geodesics import SurfacePoints, TriMesh
-from solver.hands import make_hand
+from solver.hands import KINDS, make_hand
 from solver.retarget import annotate, synthetic, transfer
 from solver.retarget.annotations import (
     AnnotationError,
@@ -556,6 +556,29 @@ def test_default_many_to_one_markers_track_one_source_vertex(human, to_alien, mo
         np.testing.assert_allclose(got[start : start + len(m.target)], np.tile(V[vertex], (len(m.target), 1)))
         start += len(m.target)
     assert start == len(got) == 13 * annotate.MARKER_POINTS
+
+
+def test_the_procedural_hands_are_made_one_per_call_ahead_of_the_first_check(monkeypatch):
+    """What procedural_kind compares with can be made ahead, one kind of hand per call (the add-on's
+    timer ticks do it after start-up); made, a check makes no hand at all. Unmade, a check makes only the
+    kinds it compares before it finds its own."""
+    made = []
+
+    def counted(kind, *args):
+        made.append(kind)
+        return make_hand(kind, *args)
+
+    monkeypatch.setattr(annotate, "make_hand", counted)
+    monkeypatch.setattr(annotate, "_TOPOLOGIES", {})
+    human = make_hand("human").mesh
+    assert annotate.procedural_kind(human) == "human" and made == ["human"]
+    calls = []
+    while not calls or calls[-1]:
+        calls.append(annotate.make_next_procedural_topology())
+    assert calls == [True] * (len(KINDS) - 2) + [False] and made == list(KINDS)
+    assert annotate.procedural_kind(make_hand("tentacle").mesh) == "tentacle"
+    assert annotate.procedural_kind(TriMesh(human.vertices, human.faces[:, ::-1])) is None
+    assert made == list(KINDS) and annotate.make_next_procedural_topology() is False
 
 
 @pytest.mark.parametrize("kind", ["human", "alien", "tentacle"])

@@ -304,12 +304,14 @@ def test_retargeting_keeps_blender_running_esc_keeps_frames_and_again_goes_on(re
     Blender up for a moment at a time only (its invoke reads the rigs; each timer tick reads frames for
     40 ms or polls the child process), so the event loop runs all along where a synchronous retarget would
     hold it for the whole minute; Esc stops it with nothing changed but the solved frames kept, and
-    Retarget again solves only the rest and keys the action, which Ctrl+Z takes back in one step.
+    Retarget again solves only the rest and keys the action, which Ctrl+Z takes back in one step. The
+    procedural hands its check compares with were made before, on timer ticks after start-up.
 
     The 20 ms heartbeat timers wait longer than the operator's calls: Blender redraws the window between
     ticks by software OpenGL here (a third of a second, measured), and while the child process and its
     workers start they take both cores."""
     r = retargeting.results
+    assert r["made_before_retarget"] == ["alien", "human", "tentacle", "witch"]  # on ticks after start-up
     assert r["longest_invoke"][1] < 0.5, r["longest_invoke"]
     assert r["longest_modal"][1] < 0.15, r["longest_modal"]
     assert r["modal_calls"] > 50  # the ticks went on while the child worked

@@ -11,7 +11,6 @@ wrist pair on the forearm so that the root is observed apart from the wrist join
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Mapping
 
 import numpy as np
@@ -357,13 +356,28 @@ def procedural_kind(mesh: TriMesh) -> str | None:
     """The kind of procedural hand whose mesh has ``mesh``'s topology (its vertices and faces in the same
     order, as the add-on's *Add › Contact Edit* makes it, wherever it is placed and however it is scaled
     or posed), or None."""
-    return _kinds_by_topology().get(mesh.topology_hash)
+    digest = mesh.topology_hash
+    return next((kind for kind in KINDS if _topology(kind) == digest), None)
 
 
-@functools.cache
-def _kinds_by_topology() -> dict[str, str]:
-    """Built once per process: it makes every kind of hand (a few tenths of a second)."""
-    return {make_hand(kind).mesh.topology_hash: kind for kind in KINDS}
+def make_next_procedural_topology() -> bool:
+    """Make the next kind of hand that :func:`procedural_kind` compares with (20-40 ms each), so that its
+    first call need not make them all (about 0.1 s); False once every kind is made. The add-on calls it
+    on timer ticks after start-up."""
+    missing = [kind for kind in KINDS if kind not in _TOPOLOGIES]
+    if missing:
+        _topology(missing[0])
+    return len(missing) > 1
+
+
+#: Each kind of procedural hand's topology hash, as :func:`_topology` makes them (once per process).
+_TOPOLOGIES: dict[str, str] = {}
+
+
+def _topology(kind: str) -> str:
+    if kind not in _TOPOLOGIES:
+        _TOPOLOGIES[kind] = make_hand(kind).mesh.topology_hash
+    return _TOPOLOGIES[kind]
 
 
 def _scale_of(hand: Hand) -> float:

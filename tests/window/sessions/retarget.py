@@ -17,6 +17,7 @@ from mathutils import Matrix
 from geodesics import TriMesh
 from solver import hands
 from solver.grasp import grasp
+from solver.retarget import annotate
 
 FRAMES = 16
 LIFT = np.array([0.0, 0.0, 0.05])
@@ -103,6 +104,7 @@ def steps(s):
     yield from open_contact_tab(s, view)
     yield from s.move(*view.centre())
     calls = timed_calls(addon("operators.retarget").CONTACT_EDIT_OT_retarget)
+    s.record("made_before_retarget", sorted(annotate._TOPOLOGIES))  # by timer ticks after start-up
 
     # Started, then stopped with Esc while the frames are solved.
     with view.override():
