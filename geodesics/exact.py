@@ -33,7 +33,7 @@ import numpy as np
 
 from .arrays import ranges, smallest_per_key
 from .errors import GeodesicError, describe_ids
-from .mesh import TriMesh
+from .mesh import TriMesh, per_mesh
 from .points import SurfacePoints
 from .tangent import arrival_to_basis, corner_halfedges, face_to_vertex
 
@@ -312,19 +312,24 @@ class GeodesicField:
     def _propagate_batch(self, w: np.ndarray) -> None:
         """Propagate windows ``w`` across their faces: drop those a shorter path beats everywhere (rules
         1-3, judged now, with the vertex distances found since they were queued), relax the opposite
-        vertex and queue the children on the two far edges."""
+        vertex and queue the children on the two far edges.
+
+        The geometry is done in each entry edge's frame (:func:`_edge_frames`): the edge runs from 0 to
+        L along the real axis, the face's third corner C is at ``Cl`` above it and the pseudosource's
+        image ``Il`` below it (or on its line)."""
         mesh, W = self.mesh, self.W
-        Pf, tail = mesh.face_points.ravel(), mesh.halfedge_tail
+        to_edge, length, apex = _edge_frames(mesh)
+        tail = mesh.halfedge_tail
         he = W.he[w]
         hn, hp = mesh.halfedge_next[he], mesh.halfedge_prev[he]
-        A, B, C = Pf[he], Pf[hn], Pf[hp]
         I, sig, u0, u1 = W.img[w], W.sigma[w], W.u0[w], W.u1[w]
-        AB = B - A
+        L, Cl = length[he], apex[he]
+        Il = (I - mesh.face_points.ravel()[he]) * to_edge[he]
         opposite = tail[hp]
-        alive = self._unbeaten(A, AB, C, I, sig, u0, u1, tail[he], tail[hn], opposite)
-        IC = C - I
-        uc = _cross(IC, I - A) / _cross(IC, AB)  # where the ray through the opposite vertex crosses AB
-        dc = sig + np.abs(IC)
+        alive = self._unbeaten(Il, Cl, L, sig, u0 * L, u1 * L, tail[he], tail[hn], opposite)
+        xI, yI = Il.real, Il.imag
+        uc = (xI - yI * (Cl.real - xI) / (Cl.imag - yI)) / L  # where the ray through C crosses the edge
+        dc = sig + np.abs(Cl - Il)
 
         sees_c = alive & (uc >= u0 - RAY_SLACK) & (uc <= u1 + RAY_SLACK)
         self._relax(opposite[sees_c], dc[sees_c], w[sees_c])
@@ -351,22 +356,22 @@ class GeodesicField:
         if s.size == 0:
             return
         on_right = np.arange(s.size) >= left.size
-        Is, As, ABs, us, u0s, u1s = I[s], A[s], AB[s], uc[s], u0[s], u1[s]
-        P0, P1 = np.where(on_right, B[s], C[s]), np.where(on_right, C[s], A[s])
+        Ils, Cls, Ls, us, u0s, u1s = Il[s], Cl[s], L[s], uc[s], u0[s], u1[s]
+        P0, P1 = np.where(on_right, Ls, Cls), np.where(on_right, Cls, 0.0)
         near = np.where(on_right, np.maximum(u0s, us), u0s)
         far = np.where(on_right, u1s, np.minimum(u1s, us))
-        t_near = np.where(on_right & (us > u0s), 1.0, _hit(Is, As + near * ABs, P0, P1))
-        t_far = np.where(~on_right & (us < u1s), 0.0, _hit(Is, As + far * ABs, P0, P1))
+        t_near = np.where(on_right & (us > u0s), 1.0, _hit(Ils, near * Ls, P0, P1))
+        t_far = np.where(~on_right & (us < u1s), 0.0, _hit(Ils, far * Ls, P0, P1))
         h_out = np.where(on_right, hn[s], hp[s])
         ok = np.flatnonzero((mesh.twin[h_out] >= 0) & (t_near - t_far > MIN_WIDTH))
-        s, h_out, t_near, t_far, Is, P0, P1 = (a[ok] for a in (s, h_out, t_near, t_far, Is, P0, P1))
+        s, h_out, t_near, t_far, Ils, P0, P1 = (a[ok] for a in (s, h_out, t_near, t_far, Ils, P0, P1))
         ws = w[s]
         self._queue(
-            sig[s] + _to_segment(Is, P0, P1, t_far, t_near),
+            sig[s] + _to_segment(Ils, P0, P1, t_far, t_near),
             he=mesh.twin[h_out],
             u0=1 - t_near,
             u1=1 - t_far,
-            img=mesh.halfedge_offset[h_out] + mesh.halfedge_rotation[h_out] * Is,
+            img=mesh.halfedge_offset[h_out] + mesh.halfedge_rotation[h_out] * I[s],
             sigma=sig[s],
             ps=W.ps[ws],
             birth=W.birth[ws],
@@ -377,29 +382,26 @@ class GeodesicField:
             direct=np.zeros(s.size, bool),
         )
 
-    def _unbeaten(self, A, AB, C, I, sig, u0, u1, va, vb, vc) -> np.ndarray:
-        """(n,) bool: False for edge windows (interval [u0, u1] of edge A -> A + AB, facing corner C; the
-        edge's vertices va, vb and the corner's vc) that a strictly shorter path beats everywhere."""
+    def _unbeaten(self, Il, Cl, L, sig, xa, xb, va, vb, vc) -> np.ndarray:
+        """(n,) bool: False for edge windows that a strictly shorter path beats everywhere. In the entry
+        edge's frame (from 0 to ``L`` on the real axis, facing corner ``Cl``): the pseudosource's image
+        ``Il`` at distance ``sig`` from the source, the interval [xa, xb]; the edge's vertices va, vb and
+        the corner's vc."""
         vd = self.vertex_distance
         d1, d2, d3 = vd[va], vd[vb], vd[vc]
-        length = np.abs(AB)
-        Xa, Xb = A + u0 * AB, A + u1 * AB
-        wa, wb = sig + np.abs(I - Xa), sig + np.abs(I - Xb)
+        wa, wb = sig + np.abs(Il - xa), sig + np.abs(Il - xb)
         grow = 1 + PRUNE_MARGIN
         # Rules 1 and 2: an edge endpoint reaches the far end of the interval along the edge.
-        dead = (wb > (d1 + u1 * length) * grow) | (wa > (d2 + (1 - u0) * length) * grow)
+        dead = (wb > (d1 + xb) * grow) | (wa > (d2 + (L - xa)) * grow)
         # Rule 3: exact minimum over the interval of (window distance) - (distance via the third vertex).
         # Along the edge it has one interior extremum, where the line from the image to the vertex's
         # mirror image (across the edge) crosses it.
-        e = AB / length
-        Il = (I - A) / e
-        R = np.conj((C - A) / e)
+        xI, yI = Il.real, Il.imag
         with np.errstate(divide="ignore", invalid="ignore"):
-            xs = (Il.real - (R.real - Il.real) * Il.imag / (R.imag - Il.imag)) / length
-        us = np.minimum(np.maximum(np.where(np.isfinite(xs), xs, u0), u0), u1)
-        Xs = A + us * AB
-        gap = np.minimum(wa - (d3 + np.abs(C - Xa)) * grow, wb - (d3 + np.abs(C - Xb)) * grow)
-        gap = np.minimum(gap, sig + np.abs(I - Xs) - (d3 + np.abs(C - Xs)) * grow)
+            xs = xI + (Cl.real - xI) * yI / (Cl.imag + yI)
+        xs = np.minimum(np.maximum(np.where(np.isfinite(xs), xs, xa), xa), xb)
+        gap = np.minimum(wa - (d3 + np.abs(Cl - xa)) * grow, wb - (d3 + np.abs(Cl - xb)) * grow)
+        gap = np.minimum(gap, sig + np.abs(Il - xs) - (d3 + np.abs(Cl - xs)) * grow)
         return ~(dead | (gap > 0))
 
     def _queue(self, key: np.ndarray, **cols) -> None:
@@ -685,6 +687,18 @@ class GeodesicField:
             points=points,
             segment_directions=np.array(segments[::-1], dtype=np.complex128).reshape(-1, 2),
         )
+
+
+@per_mesh
+def _edge_frames(mesh: TriMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(3m,) each, per halfedge h: ``to_edge``, the unit complex that turns face(h)'s frame into the
+    edge's (a point z is at ``(z - tail) * to_edge`` there, with the edge along the positive real axis
+    and the face above it); the edge's length; and the face's third corner in the edge's frame."""
+    P = mesh.face_points.ravel()
+    edge = P[mesh.halfedge_next] - P
+    length = np.abs(edge)
+    to_edge = np.conj(edge) / length
+    return to_edge, length, (P[mesh.halfedge_prev] - P) * to_edge
 
 
 def _root_faces(mesh: TriMesh, sources: SurfacePoints):
