@@ -76,6 +76,8 @@ class _Windows:
         self.data = {k: np.empty(capacity, t) for k, t in self.FIELDS.items()}
 
     def append(self, **cols) -> np.ndarray:
+        """Store windows given column by column (``he`` an array, the others arrays of its length or one
+        value for all) and return their indices."""
         n = len(cols["he"])
         need = self.size + n
         if need > len(self.data["he"]):
@@ -379,7 +381,7 @@ class GeodesicField:
             corner=W.corner[ws],
             label=W.label[ws],
             parent=ws,
-            direct=np.zeros(s.size, bool),
+            direct=False,
         )
 
     def _unbeaten(self, Il, Cl, L, sig, xa, xb, va, vb, vc) -> np.ndarray:
@@ -434,16 +436,14 @@ class GeodesicField:
         way it came in, on both sides; only those directions get windows.
         """
         mesh, W = self.mesh, self.W
-        P = mesh.face_points
+        Pf = mesh.face_points.ravel()
+        to_edge, length, apex = _edge_frames(mesh)
         parent = self.vertex_parent[verts]
-        fp = W.he[parent] // 3
-        corner_in = corner_halfedges(mesh, fp, verts)
-        here = P[fp, corner_in % 3]
-        back = W.img[parent] - here  # towards where the geodesic came from
+        corner_in = corner_halfedges(mesh, W.he[parent] // 3, verts)
+        back = W.img[parent] - Pf[corner_in]  # towards where the geodesic came from
         theta = mesh.angle_sums[verts]
         boundary = mesh.is_boundary_vertex[verts]
-        e_in = P[fp, (corner_in % 3 + 1) % 3] - here
-        a_back = mesh.halfedge_angle[corner_in] + np.angle(back / e_in)
+        a_back = mesh.halfedge_angle[corner_in] + np.angle(back * to_edge[corner_in])
         a_back = np.where(boundary, a_back, np.mod(a_back, theta))
         counts = mesh.ring_start[verts + 1] - mesh.ring_start[verts]
         owner, ring = ranges(mesh.ring_start[verts], counts)
@@ -472,44 +472,42 @@ class GeodesicField:
         h, u, a0, a1 = h[sel], u[sel], a0[sel], a1[sel]
         if h.size == 0:
             return
-        f, k = h // 3, h % 3
-        pu = P[f, k]
         sigma = self.vertex_distance[u]
         label = W.label[self.vertex_parent[u]]
         birth = self._birth[u]
-        r = h.size
         direct = W.append(
             he=h,
-            u0=np.zeros(r),
-            u1=np.ones(r),
-            img=pu,
+            u0=0.0,
+            u1=1.0,
+            img=Pf[h],
             sigma=sigma,
             ps=u,
             birth=birth,
-            rot=np.ones(r, complex),
+            rot=1.0,
             corner=h,
             label=label,
-            parent=np.full(r, -1),
-            direct=np.ones(r, bool),
+            parent=-1,
+            direct=True,
         )
-        others = np.stack([mesh.faces[f, (k + 1) % 3], mesh.faces[f, (k + 2) % 3]], 1)
-        dist = sigma[:, None] + np.abs(np.stack([P[f, (k + 1) % 3], P[f, (k + 2) % 3]], 1) - pu[:, None])
-        self._relax(others.ravel(), dist.ravel(), np.repeat(direct, 2))
-        opp = 3 * f + (k + 1) % 3
-        ok = mesh.twin[opp] >= 0
-        opp = opp[ok]
-        n = opp.size
-        # Where the cone's bounding rays meet the opposite edge (parameters along it, then on its twin).
-        B, C = P[f[ok], (k[ok] + 1) % 3], P[f[ok], (k[ok] + 2) % 3]
-        first_edge = (B - pu[ok]) / np.abs(B - pu[ok])
-        t0 = _hit(pu[ok], pu[ok] + first_edge * np.exp(1j * a0[ok]), B, C)
-        t1 = _hit(pu[ok], pu[ok] + first_edge * np.exp(1j * a1[ok]), B, C)
+        nxt, prv = mesh.halfedge_next[h], mesh.halfedge_prev[h]
+        tail = mesh.halfedge_tail
+        self._relax(
+            np.concatenate([tail[nxt], tail[prv]]),
+            np.concatenate([sigma + length[h], sigma + length[prv]]),
+            np.concatenate([direct, direct]),
+        )
+        # Windows on the opposite edge (halfedge nxt), between where the cone's bounding rays meet it:
+        # in corner h's edge frame the vertex is at 0, the edge runs from L to the apex.
+        ok = np.flatnonzero(mesh.twin[nxt] >= 0)
+        opp, L, Cl = nxt[ok], length[h[ok]], apex[h[ok]]
+        t0 = _hit(0.0, np.exp(1j * a0[ok]), L, Cl)
+        t1 = _hit(0.0, np.exp(1j * a1[ok]), L, Cl)
         self._queue(
-            sigma[ok] + _to_segment(pu[ok], B, C, t0, t1),
+            sigma[ok] + _to_segment(0.0, L, Cl, t0, t1),
             he=mesh.twin[opp],
             u0=1 - t1,
             u1=1 - t0,
-            img=mesh.halfedge_offset[opp] + mesh.halfedge_rotation[opp] * pu[ok],
+            img=mesh.halfedge_offset[opp] + mesh.halfedge_rotation[opp] * Pf[h[ok]],
             sigma=sigma[ok],
             ps=u[ok],
             birth=birth[ok],
@@ -517,7 +515,7 @@ class GeodesicField:
             corner=h[ok],
             label=label[ok],
             parent=direct[ok],
-            direct=np.zeros(n, bool),
+            direct=False,
         )
 
     # ------------------------------------------------------------------ queries
