@@ -21,14 +21,15 @@ from .points import SurfacePoints
 def corner_halfedges(mesh: TriMesh, faces: np.ndarray, vertices: np.ndarray) -> np.ndarray:
     """(k,) halfedge of ``faces[i]`` that starts at ``vertices[i]`` (the face's corner at that vertex), for
     ``faces`` and ``vertices`` (k,)."""
-    match = mesh.faces[faces] == np.asarray(vertices)[:, None]
-    bad = np.flatnonzero(~match.any(1))
+    faces, vertices = np.asarray(faces), np.asarray(vertices)
+    corners = mesh.faces[faces]
+    first, second = corners[:, 1] == vertices, corners[:, 2] == vertices
+    bad = np.flatnonzero(~(first | second | (corners[:, 0] == vertices)))
     if bad.size:
         raise MeshError(
-            f"vertices {describe_ids(np.asarray(vertices)[bad])} are not corners of faces "
-            f"{describe_ids(np.asarray(faces)[bad])}"
+            f"vertices {describe_ids(vertices[bad])} are not corners of faces {describe_ids(faces[bad])}"
         )
-    return 3 * np.asarray(faces) + np.argmax(match, axis=1)
+    return 3 * faces + first + 2 * second
 
 
 def _edge_direction(mesh: TriMesh, halfedges: np.ndarray) -> np.ndarray:

@@ -313,12 +313,11 @@ def _through_vertex(mesh: TriMesh, faces, local, d):
 def _finish(mesh, faces, bary, d, unit, length, stopped, travelled) -> Trace:
     """Snap end points onto vertices they (numerically) sit on and express directions in their bases."""
     np.maximum(bary, 0.0, out=bary)
-    bary /= bary.sum(1, keepdims=True)
-    at_vertex = np.count_nonzero(bary >= VERTEX_SNAP, axis=1) == 1
-    local = np.argmax(bary, axis=1)
-    bary[at_vertex] = 0.0
-    bary[np.flatnonzero(at_vertex), local[at_vertex]] = 1.0
-    bary[~at_vertex[:, None] & (bary < VERTEX_SNAP)] = 0.0
+    bary /= (bary[:, 0] + bary[:, 1] + bary[:, 2])[:, None]
+    kept = (bary >= VERTEX_SNAP).view(np.uint8)
+    at_vertex = np.flatnonzero(kept[:, 0] + kept[:, 1] + kept[:, 2] == 1)
+    bary[bary < VERTEX_SNAP] = 0.0
+    bary[at_vertex] = kept[at_vertex]
     points = SurfacePoints(faces, bary)
     directions = arrival_to_basis(mesh, points, faces, d)
     zero = length == 0
