@@ -27,7 +27,6 @@ from pseudosources in that face); the path is recovered by walking back through 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
 
 import numpy as np
 
@@ -45,7 +44,7 @@ RAY_SLACK = 1e-9
 MIN_WIDTH = 1e-12
 #: Processing band, in mean edge lengths.
 BAND = 3.0
-#: At most this many windows' room is reserved before propagating (about 0.1 GB; more grows as needed).
+#: At most this many windows' room is reserved before propagating (64 MB; more grows as needed).
 WINDOWS_RESERVED = 1 << 20
 
 
@@ -53,41 +52,27 @@ def _cross(a, b):
     return (np.conj(a) * b).imag
 
 
-class _Windows:
-    """Growable struct-of-arrays holding every window ever created."""
+class _Columns:
+    """A growable struct-of-arrays: rows are appended column by column and a column is read as an
+    attribute (the rows stored so far)."""
 
-    FIELDS: ClassVar[dict[str, type]] = {
-        "he": np.int64,  # halfedge the window lies on; its rays enter face(he)
-        "u0": np.float64,  # interval along he, 0 at its tail, 1 at its head
-        "u1": np.float64,
-        "img": np.complex128,  # pseudosource image in face(he)'s frame
-        "sigma": np.float64,  # distance from the source to the pseudosource
-        "ps": np.int64,  # pseudosource vertex, or -1 for the source point
-        "birth": np.int64,  # the pseudosource's birth count when this window was made
-        "rot": np.complex128,  # direction in face(he) frame = rot * direction in the pseudosource frame
-        "corner": np.int64,  # pseudosource frame: face(corner)'s, at vertex tail(corner); -1: source face
-        "label": np.int64,  # which source
-        "parent": np.int64,  # window this one was propagated from; -1 if it starts at its pseudosource
-        "direct": np.bool_,  # a segment from the pseudosource inside its own face, not an edge window
-    }
-
-    def __init__(self, capacity: int = 1024):
+    def __init__(self, fields: dict[str, type], capacity: int):
         self.size = 0
-        self.data = {k: np.empty(capacity, t) for k, t in self.FIELDS.items()}
+        self.data = {k: np.empty(capacity, t) for k, t in fields.items()}
 
     def append(self, **cols) -> np.ndarray:
-        """Store windows given column by column (``he`` an array, the others arrays of its length or one
-        value for all) and return their indices."""
-        n = len(cols["he"])
-        need = self.size + n
-        if need > len(self.data["he"]):
-            cap = max(need, 2 * len(self.data["he"]))
+        """Store rows given column by column (the first column an array, the others arrays of its length
+        or one value for all) and return their indices."""
+        first = next(iter(self.data))
+        need = self.size + len(cols[first])
+        if need > len(self.data[first]):
+            cap = max(need, 2 * len(self.data[first]))
             for k, a in self.data.items():
                 grown = np.empty(cap, a.dtype)
                 grown[: self.size] = a[: self.size]
                 self.data[k] = grown
-        for k in self.FIELDS:
-            self.data[k][self.size : need] = cols[k]
+        for k, column in self.data.items():
+            column[self.size : need] = cols[k]
         idx = np.arange(self.size, need)
         self.size = need
         return idx
@@ -97,6 +82,26 @@ class _Windows:
         if data is not None and name in data:
             return data[name][: self.size]
         raise AttributeError(name)
+
+
+#: A window's columns: a family of straight rays from a pseudosource through an interval of an edge.
+_WINDOW = {
+    "he": np.int64,  # halfedge the window lies on; its rays enter face(he)
+    "u0": np.float64,  # interval along he, 0 at its tail, 1 at its head
+    "u1": np.float64,
+    "img": np.complex128,  # pseudosource image in face(he)'s frame
+    "rot": np.complex128,  # direction in face(he) frame = rot * direction in the pseudosource frame
+    "root": np.int64,  # its chain: a row of the chains' table
+    "parent": np.int64,  # window it was propagated from; -1 for a direct segment, which starts a chain
+}
+#: What every window of a chain (propagated from one direct segment) shares.
+_CHAIN = {
+    "label": np.int64,  # which source
+    "sigma": np.float64,  # distance from the source to the pseudosource
+    "ps": np.int64,  # pseudosource vertex, or -1 for the source point
+    "birth": np.int64,  # the pseudosource's birth count when the chain started
+    "corner": np.int64,  # pseudosource frame: face(corner)'s, at vertex tail(corner); -1: source face
+}
 
 
 @dataclass(frozen=True, eq=False)
@@ -197,7 +202,8 @@ class GeodesicField:
         n = mesh.n_vertices
         # Room for the windows a whole mesh usually needs (up to a few dozen per face), reserved up front:
         # memory is only touched as it fills, and the arrays are not copied each time they would double.
-        self.W = _Windows(min(48 * mesh.n_faces, WINDOWS_RESERVED))
+        self.W = _Columns(_WINDOW, min(48 * mesh.n_faces, WINDOWS_RESERVED))
+        self.chains = _Columns(_CHAIN, 1024)
         self.vertex_distance = np.full(n, np.inf)
         self.vertex_parent = np.full(n, -1, np.int64)
         self._birth = np.zeros(n, np.int64)
@@ -225,21 +231,9 @@ class GeodesicField:
         P = mesh.face_points
         v, e = self.sources.vertex_ids(mesh), self.sources.edge_halfedges(mesh)
         label, face, pos, rot, corner = _root_faces(mesh, self.sources)
-        r = face.size
-        direct = self.W.append(
-            he=np.where(corner >= 0, corner, 3 * face),
-            u0=np.zeros(r),
-            u1=np.ones(r),
-            img=pos,
-            sigma=np.zeros(r),
-            ps=np.full(r, -1),
-            birth=np.zeros(r, np.int64),
-            rot=rot,
-            corner=corner,
-            label=label,
-            parent=np.full(r, -1),
-            direct=np.ones(r, bool),
-        )
+        chain = self.chains.append(label=label, sigma=0.0, ps=-1, birth=0, corner=corner)
+        he = np.where(corner >= 0, corner, 3 * face)
+        direct = self.W.append(he=he, u0=0.0, u1=1.0, img=pos, rot=rot, root=chain, parent=-1)
         # Vertices of root faces are reached by straight segments inside those faces.
         self._relax(mesh.faces[face].ravel(), np.abs(P[face] - pos[:, None]).ravel(), np.repeat(direct, 3))
         # Windows on the far side of each root face edge that does not hold the source.
@@ -255,17 +249,12 @@ class GeodesicField:
         self._queue(
             _to_segment(pos[row], Pf[hh], Pf[mesh.halfedge_next[hh]], 0.0, 1.0),
             he=mesh.twin[hh],
-            u0=np.zeros(hh.size),
-            u1=np.ones(hh.size),
+            u0=0.0,
+            u1=1.0,
             img=mesh.halfedge_offset[hh] + mesh.halfedge_rotation[hh] * pos[row],
-            sigma=np.zeros(hh.size),
-            ps=np.full(hh.size, -1),
-            birth=np.zeros(hh.size, np.int64),
             rot=rot[row] * mesh.halfedge_rotation[hh],
-            corner=corner[row],
-            label=label[row],
+            root=chain[row],
             parent=direct[row],
-            direct=np.zeros(hh.size, bool),
         )
 
     # ------------------------------------------------------------------ propagation
@@ -288,8 +277,9 @@ class GeodesicField:
             take = self._pending_key < cut
             batch = self._pending[take]
             self._pending, self._pending_key = self._pending[~take], self._pending_key[~take]
-            ps = self.W.ps[batch]
-            live = (ps < 0) | (self.W.birth[batch] == self._birth[np.maximum(ps, 0)])
+            chain = self.W.root[batch]
+            ps = self.chains.ps[chain]
+            live = (ps < 0) | (self.chains.birth[chain] == self._birth[np.maximum(ps, 0)])
             batch = batch[live]
             if batch.size:
                 self._propagate_batch(batch)
@@ -324,7 +314,8 @@ class GeodesicField:
         tail = mesh.halfedge_tail
         he = W.he[w]
         hn, hp = mesh.halfedge_next[he], mesh.halfedge_prev[he]
-        I, sig, u0, u1 = W.img[w], W.sigma[w], W.u0[w], W.u1[w]
+        root = W.root[w]
+        I, sig, u0, u1 = W.img[w], self.chains.sigma[root], W.u0[w], W.u1[w]
         L, Cl = length[he], apex[he]
         Il = (I - mesh.face_points.ravel()[he]) * to_edge[he]
         opposite = tail[hp]
@@ -374,14 +365,9 @@ class GeodesicField:
             u0=1 - t_near,
             u1=1 - t_far,
             img=mesh.halfedge_offset[h_out] + mesh.halfedge_rotation[h_out] * I[s],
-            sigma=sig[s],
-            ps=W.ps[ws],
-            birth=W.birth[ws],
             rot=W.rot[ws] * mesh.halfedge_rotation[h_out],
-            corner=W.corner[ws],
-            label=W.label[ws],
+            root=root[s],
             parent=ws,
-            direct=False,
         )
 
     def _unbeaten(self, Il, Cl, L, sig, xa, xb, va, vb, vc) -> np.ndarray:
@@ -473,22 +459,9 @@ class GeodesicField:
         if h.size == 0:
             return
         sigma = self.vertex_distance[u]
-        label = W.label[self.vertex_parent[u]]
-        birth = self._birth[u]
-        direct = W.append(
-            he=h,
-            u0=0.0,
-            u1=1.0,
-            img=Pf[h],
-            sigma=sigma,
-            ps=u,
-            birth=birth,
-            rot=1.0,
-            corner=h,
-            label=label,
-            parent=-1,
-            direct=True,
-        )
+        label = self.chains.label[W.root[self.vertex_parent[u]]]
+        chain = self.chains.append(label=label, sigma=sigma, ps=u, birth=self._birth[u], corner=h)
+        direct = W.append(he=h, u0=0.0, u1=1.0, img=Pf[h], rot=1.0, root=chain, parent=-1)
         nxt, prv = mesh.halfedge_next[h], mesh.halfedge_prev[h]
         tail = mesh.halfedge_tail
         self._relax(
@@ -508,14 +481,9 @@ class GeodesicField:
             u0=1 - t1,
             u1=1 - t0,
             img=mesh.halfedge_offset[opp] + mesh.halfedge_rotation[opp] * Pf[h[ok]],
-            sigma=sigma[ok],
-            ps=u[ok],
-            birth=birth[ok],
             rot=mesh.halfedge_rotation[opp],
-            corner=h[ok],
-            label=label[ok],
+            root=chain[ok],
             parent=direct[ok],
-            direct=False,
         )
 
     # ------------------------------------------------------------------ queries
@@ -540,7 +508,7 @@ class GeodesicField:
         W = self.W
         p = z[entry]
         I = W.img[w]
-        value = W.sigma[w] + np.abs(p - I)
+        value = self.chains.sigma[W.root[w]] + np.abs(p - I)
         he = W.he[w]
         Pf = self.mesh.face_points.ravel()
         A, B = Pf[he], Pf[self.mesh.halfedge_next[he]]
@@ -548,7 +516,7 @@ class GeodesicField:
         with np.errstate(divide="ignore", invalid="ignore"):
             u = _cross(d, I - A) / _cross(d, B - A)
         through = (u >= W.u0[w] - RAY_SLACK) & (u <= W.u1[w] + RAY_SLACK)
-        value = np.where(W.direct[w] | through, value, np.inf)
+        value = np.where((W.parent[w] < 0) | through, value, np.inf)
         best = np.full(faces.size, -1, np.int64)
         dist = np.full(faces.size, np.inf)
         if value.size:
@@ -605,28 +573,26 @@ class GeodesicField:
             unit = _unit(here[r] - W.img[wr])
             init[r] = self._initial_directions(wr, unit)
             final[r] = arrival_to_basis(self.mesh, points[r], face[r], unit)
-            src[r] = W.label[wr]
+            src[r] = self.chains.label[W.root[wr]]
         return GeodesicQuery(dist, src, init, final)
 
     def _initial_directions(self, windows: np.ndarray, unit: np.ndarray) -> np.ndarray:
         """Direction at the source of geodesics that leave ``windows``' pseudosources along ``unit``."""
-        W = self.W
+        W, ps = self.W, self.chains.ps
         w, d = windows.copy(), unit.copy()
-        chained = W.ps[w] >= 0
+        chained = ps[W.root[w]] >= 0
         while np.any(chained):  # walk back from pseudosource vertices to the source
             idx = np.flatnonzero(chained)
-            u = W.ps[w[idx]]
+            u = ps[W.root[w[idx]]]
             wp = self.vertex_parent[u]
-            pu = self.mesh.face_points[
-                W.he[wp] // 3, np.argmax(self.mesh.faces[W.he[wp] // 3] == u[:, None], axis=1)
-            ]
-            travel = pu - W.img[wp]
+            travel = self.mesh.face_points.ravel()[corner_halfedges(self.mesh, W.he[wp] // 3, u)] - W.img[wp]
             d[idx] = travel / np.abs(travel)
             w[idx] = wp
-            chained[idx] = W.ps[wp] >= 0
+            chained[idx] = ps[W.root[wp]] >= 0
         out = d / W.rot[w]
-        vc = W.corner[w] >= 0
-        out[vc] = face_to_vertex(self.mesh, W.corner[w[vc]], out[vc])
+        corner = self.chains.corner[W.root[w]]
+        vc = corner >= 0
+        out[vc] = face_to_vertex(self.mesh, corner[vc], out[vc])
         out[unit == 0] = 0
         return out
 
@@ -646,7 +612,7 @@ class GeodesicField:
         while True:
             # Walk one straight segment back from `end` (in face(w)'s frame) to its pseudosource,
             # recording where it crosses each edge.
-            while not W.direct[w]:
+            while W.parent[w] >= 0:
                 he = W.he[w]
                 A, B = mesh.face_points.flat[he], mesh.face_points.flat[mesh.halfedge_next[he]]
                 d = end - W.img[w]
@@ -658,19 +624,20 @@ class GeodesicField:
                 end = mesh.halfedge_offset[he] + mesh.halfedge_rotation[he] * (A + u * (B - A))
                 w = W.parent[w]
             leave = _unit(end - W.img[w]) / W.rot[w]
-            c = W.corner[w]
+            chain = W.root[w]
+            c = self.chains.corner[chain]
             if c >= 0:
                 leave = face_to_vertex(mesh, np.array([c]), np.array([leave]))[0]
                 faces.append(c // 3)
                 bary.append(np.eye(3)[c % 3])
             else:
-                faces.append(self.sources.faces[W.label[w]])
-                bary.append(self.sources.bary[W.label[w]])
+                faces.append(self.sources.faces[self.chains.label[chain]])
+                bary.append(self.sources.bary[self.chains.label[chain]])
             segments.append((leave, final))
-            if W.ps[w] < 0:
+            vertex = self.chains.ps[chain]
+            if vertex < 0:
                 break
             # The segment started at a vertex the path bends around; continue from how it got there.
-            vertex = W.ps[w]
             w = self.vertex_parent[vertex]
             corner = corner_halfedges(mesh, np.array([W.he[w] // 3]), np.array([vertex]))
             end = complex(mesh.face_points.flat[corner[0]])
