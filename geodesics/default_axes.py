@@ -49,15 +49,19 @@ def farthest_pair_axis(mesh: TriMesh, points: SurfacePoints) -> Axis:
     if len(points) < 2:
         raise ContactError(f"a default axis needs at least two patch points, got {len(points)}")
     sweep = _graph_sweeps(mesh, points)
-    a = int(np.argmax(sweep([0])[0]))
-    from_a = sweep([a])[0]
+    from_first = sweep([0])[0]
+    a = int(np.argmax(from_first))
+    # Every two patch points are at most twice that far apart (through point 0): the other sweeps stop
+    # there instead of covering the whole mesh.
+    limit = 2 * from_first[a] * (1 + 1e-9)
+    from_a = sweep([a], limit)[0]
     sources = np.unique(np.r_[a, np.argsort(from_a)[-CANDIDATES:]])
-    estimate = sweep(sources)
+    estimate = sweep(sources, limit)
     row, far = np.unravel_index(int(np.argmax(estimate)), estimate.shape)
     if estimate[row, far] == 0:
         raise ContactError("all patch points coincide; paint a larger area or pick an axis by hand")
     end = _exactly_farthest(mesh, points, int(sources[row]), estimate[row])[0]
-    start, field = _exactly_farthest(mesh, points, end, sweep([end])[0])
+    start, field = _exactly_farthest(mesh, points, end, sweep([end], limit)[0])
     back = Axis.along(mesh, field.path(points[[start]]))  # from the end: its field is there already
     return Axis(mesh, back.points[np.arange(len(back))[::-1]])
 
@@ -73,10 +77,11 @@ def _exactly_farthest(
 
 
 def _graph_sweeps(mesh: TriMesh, points: SurfacePoints):
-    """``sweep(sources)``: the (s, k) shortest-path lengths from the patch points ``sources`` (s,) to all k
-    patch points over the mesh edges plus straight lines from each patch point to its face's corners:
-    an upper bound on the geodesic distance (8 % over it in the median on a jittered grid, whatever the
-    resolution: the error is the edges' zigzag). One C Dijkstra a sweep."""
+    """``sweep(sources, limit=inf)``: the (s, k) shortest-path lengths from the patch points ``sources``
+    (s,) to all k patch points over the mesh edges plus straight lines from each patch point to its
+    face's corners: an upper bound on the geodesic distance (8 % over it in the median on a jittered
+    grid, whatever the resolution: the error is the edges' zigzag). One C Dijkstra a source, which
+    goes no farther than ``limit`` (inf beyond it)."""
     n, k = mesh.n_vertices, len(points)
     corners = mesh.faces[points.faces]  # (k, 3)
     spokes = np.linalg.norm(mesh.vertices[corners] - points.positions(mesh)[:, None], axis=2)
@@ -86,8 +91,8 @@ def _graph_sweeps(mesh: TriMesh, points: SurfacePoints):
     weights = np.r_[edges.data, np.maximum(spokes.ravel(), 1e-300)]  # a zero weight would drop the edge
     graph = coo_matrix((weights, (rows, cols)), shape=(n + k, n + k)).tocsr()
 
-    def sweep(sources) -> np.ndarray:
-        return dijkstra(graph, directed=False, indices=n + np.asarray(sources, np.int64))[:, n:]
+    def sweep(sources, limit: float = np.inf) -> np.ndarray:
+        return dijkstra(graph, directed=False, indices=n + np.asarray(sources, np.int64), limit=limit)[:, n:]
 
     return sweep
 

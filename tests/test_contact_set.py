@@ -244,6 +244,21 @@ def test_the_farthest_pair_estimate_bounds_the_geodesic_distance(plane):
     assert np.median(ratio) < 1.15 and ratio.max() < 1.5  # measured 1.08 and 1.33 on this jittered grid
 
 
+def test_sweeps_stopped_at_twice_the_farthest_distance_from_one_point_miss_no_pair(plane):
+    """The farthest-pair search stops its later sweeps at twice the farthest distance from patch point 0
+    (every pair is joined through point 0 within it): every pair's distance is the unstopped sweep's, on
+    a patch a fraction of the mesh, where the stopped sweeps skip most of it."""
+    rng = np.random.default_rng(7)
+    pool = SurfacePoints(rng.integers(0, plane.n_faces, 20000), rng.dirichlet([1.0, 1.0, 1.0], 20000))
+    X = pool.positions(plane)
+    points = pool[np.flatnonzero(np.linalg.norm(X[:, :2] - [0.6, 1.3], axis=1) < 0.25)[:300]]
+    sweep = _graph_sweeps(plane, points)
+    everything = sweep(np.arange(len(points)))
+    limit = 2 * everything[0].max() * (1 + 1e-9)
+    np.testing.assert_array_equal(sweep(np.arange(len(points)), limit), everything)
+    assert np.isinf(sweep(np.arange(len(points)), limit / 2)).any()  # half of it loses pairs
+
+
 @pytest.mark.parametrize("seed", range(11, 17))
 def test_medial_axis_of_a_strip_runs_along_its_middle(seed):
     """The 1.4 × 0.4 strip's medial axis is the segment y = 1, 0.5 ≤ x ≤ 1.5 (plus spurs to its corners,
