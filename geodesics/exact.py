@@ -351,21 +351,24 @@ class GeodesicField:
         on_right = np.arange(s.size) >= left.size
         Ils, Cls, Ls, us, u0s, u1s = Il[s], Cl[s], L[s], uc[s], u0[s], u1[s]
         P0, P1 = np.where(on_right, Ls, Cls), np.where(on_right, Cls, 0.0)
-        near = np.where(on_right, np.maximum(u0s, us), u0s)
-        far = np.where(on_right, u1s, np.minimum(u1s, us))
-        t_near = np.where(on_right & (us > u0s), 1.0, _hit(Ils, near * Ls, P0, P1))
-        t_far = np.where(~on_right & (us < u1s), 0.0, _hit(Ils, far * Ls, P0, P1))
+        t_near = np.where(on_right & (us > u0s), 1.0, _hit(Ils, u0s * Ls, P0, P1))
+        t_far = np.where(~on_right & (us < u1s), 0.0, _hit(Ils, u1s * Ls, P0, P1))
         h_out = np.where(on_right, hn[s], hp[s])
-        ok = np.flatnonzero((mesh.twin[h_out] >= 0) & (t_near - t_far > MIN_WIDTH))
-        s, h_out, t_near, t_far, Ils, P0, P1 = (a[ok] for a in (s, h_out, t_near, t_far, Ils, P0, P1))
-        ws = w[s]
+        twin = mesh.twin[h_out]
+        ok = (twin >= 0) & (t_near - t_far > MIN_WIDTH)
+        if not ok.all():  # a boundary edge, or a sliver of a window: rare
+            ok = np.flatnonzero(ok)
+            s, h_out, twin, t_near, t_far, Ils, P0, P1 = (
+                a[ok] for a in (s, h_out, twin, t_near, t_far, Ils, P0, P1)
+            )
+        ws, rotation = w[s], mesh.halfedge_rotation[h_out]
         self._queue(
             sig[s] + _to_segment(Ils, P0, P1, t_far, t_near),
-            he=mesh.twin[h_out],
+            he=twin,
             u0=1 - t_near,
             u1=1 - t_far,
-            img=mesh.halfedge_offset[h_out] + mesh.halfedge_rotation[h_out] * I[s],
-            rot=W.rot[ws] * mesh.halfedge_rotation[h_out],
+            img=mesh.halfedge_offset[h_out] + rotation * I[s],
+            rot=W.rot[ws] * rotation,
             root=root[s],
             parent=ws,
         )
@@ -377,20 +380,21 @@ class GeodesicField:
         the corner's vc."""
         vd = self.vertex_distance
         d1, d2, d3 = vd[va], vd[vb], vd[vc]
-        wa, wb = sig + np.abs(Il - xa), sig + np.abs(Il - xb)
-        grow = 1 + PRUNE_MARGIN
+        # Window distances shrunk by the margin: a path must beat them to discard the window.
+        shrink = 1 / (1 + PRUNE_MARGIN)
+        wa, wb = (sig + np.abs(Il - xa)) * shrink, (sig + np.abs(Il - xb)) * shrink
         # Rules 1 and 2: an edge endpoint reaches the far end of the interval along the edge.
-        dead = (wb > (d1 + xb) * grow) | (wa > (d2 + (L - xa)) * grow)
+        dead = (wb > d1 + xb) | (wa > d2 + (L - xa))
         # Rule 3: exact minimum over the interval of (window distance) - (distance via the third vertex).
         # Along the edge it has one interior extremum, where the line from the image to the vertex's
-        # mirror image (across the edge) crosses it.
+        # mirror image (across the edge) crosses it (where that line runs along the edge, any point is
+        # the minimum: fmax/fmin put NaN on the interval's start, and inf on an end).
         xI, yI = Il.real, Il.imag
         with np.errstate(divide="ignore", invalid="ignore"):
-            xs = xI + (Cl.real - xI) * yI / (Cl.imag + yI)
-        xs = np.minimum(np.maximum(np.where(np.isfinite(xs), xs, xa), xa), xb)
-        gap = np.minimum(wa - (d3 + np.abs(Cl - xa)) * grow, wb - (d3 + np.abs(Cl - xb)) * grow)
-        gap = np.minimum(gap, sig + np.abs(Il - xs) - (d3 + np.abs(Cl - xs)) * grow)
-        return ~(dead | (gap > 0))
+            xs = np.fmin(np.fmax(xI + (Cl.real - xI) * yI / (Cl.imag + yI), xa), xb)
+        least = np.minimum(wa - np.abs(Cl - xa), wb - np.abs(Cl - xb))
+        least = np.minimum(least, (sig + np.abs(Il - xs)) * shrink - np.abs(Cl - xs))
+        return ~(dead | (least > d3))
 
     def _queue(self, key: np.ndarray, **cols) -> None:
         """Store new edge windows and queue them by ``key``, a lower bound on any distance their rays
