@@ -351,8 +351,9 @@ class GeodesicField:
         on_right = np.arange(s.size) >= left.size
         Ils, Cls, Ls, us, u0s, u1s = Il[s], Cl[s], L[s], uc[s], u0[s], u1[s]
         P0, P1 = np.where(on_right, Ls, Cls), np.where(on_right, Cls, 0.0)
-        t_near = np.where(on_right & (us > u0s), 1.0, _hit(Ils, u0s * Ls, P0, P1))
-        t_far = np.where(~on_right & (us < u1s), 0.0, _hit(Ils, u1s * Ls, P0, P1))
+        with np.errstate(divide="ignore", invalid="ignore"):  # where C bounds a child, its ray may miss
+            t_near = np.where(on_right & (us > u0s), 1.0, _hit(Ils, u0s * Ls, P0, P1))
+            t_far = np.where(~on_right & (us < u1s), 0.0, _hit(Ils, u1s * Ls, P0, P1))
         h_out = np.where(on_right, hn[s], hp[s])
         twin = mesh.twin[h_out]
         ok = (twin >= 0) & (t_near - t_far > MIN_WIDTH)
