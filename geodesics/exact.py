@@ -34,7 +34,7 @@ from .arrays import ranges, smallest_per_key
 from .errors import GeodesicError, describe_ids
 from .mesh import TriMesh, per_mesh
 from .points import SurfacePoints
-from .tangent import arrival_to_basis, corner_halfedges, face_to_vertex
+from .tangent import arrival_to_basis, face_to_vertex
 
 #: Relative margin by which a path must be shorter for a rule to discard a window.
 PRUNE_MARGIN = 1e-10
@@ -206,6 +206,7 @@ class GeodesicField:
         self.chains = _Columns(_CHAIN, 1024)
         self.vertex_distance = np.full(n, np.inf)
         self.vertex_parent = np.full(n, -1, np.int64)
+        self._vertex_corner = np.full(n, -1, np.int64)  # the vertex's corner in its parent's face
         self._birth = np.zeros(n, np.int64)
         self._split_d = np.full(3 * mesh.n_faces, np.inf)
         self._split_u = np.zeros(3 * mesh.n_faces)
@@ -235,7 +236,8 @@ class GeodesicField:
         he = np.where(corner >= 0, corner, 3 * face)
         direct = self.W.append(he=he, u0=0.0, u1=1.0, img=pos, rot=rot, root=chain, parent=-1)
         # Vertices of root faces are reached by straight segments inside those faces.
-        self._relax(mesh.faces[face].ravel(), np.abs(P[face] - pos[:, None]).ravel(), np.repeat(direct, 3))
+        corners = (3 * face[:, None] + np.arange(3)).ravel()
+        self._relax(corners, np.abs(P.ravel()[corners] - np.repeat(pos, 3)), np.repeat(direct, 3))
         # Windows on the far side of each root face edge that does not hold the source.
         h = 3 * face[:, None] + np.arange(3)
         on_edge = np.zeros(h.shape, bool)
@@ -318,14 +320,13 @@ class GeodesicField:
         I, sig, u0, u1 = W.img[w], self.chains.sigma[root], W.u0[w], W.u1[w]
         L, Cl = length[he], apex[he]
         Il = (I - mesh.face_points.ravel()[he]) * to_edge[he]
-        opposite = tail[hp]
-        alive = self._unbeaten(Il, Cl, L, sig, u0 * L, u1 * L, tail[he], tail[hn], opposite)
+        alive = self._unbeaten(Il, Cl, L, sig, u0 * L, u1 * L, tail[he], tail[hn], tail[hp])
         xI, yI = Il.real, Il.imag
         uc = (xI - yI * (Cl.real - xI) / (Cl.imag - yI)) / L  # where the ray through C crosses the edge
         dc = sig + np.abs(Cl - Il)
 
         sees_c = alive & (uc >= u0 - RAY_SLACK) & (uc <= u1 + RAY_SLACK)
-        self._relax(opposite[sees_c], dc[sees_c], w[sees_c])
+        self._relax(hp[sees_c], dc[sees_c], w[sees_c])
 
         # One angle, one split.
         keep_left = alive & (uc > u0 + MIN_WIDTH)
@@ -403,18 +404,21 @@ class GeodesicField:
         self._pending = np.concatenate([self._pending, self.W.append(**cols)])
         self._pending_key = np.concatenate([self._pending_key, key])
 
-    def _relax(self, vertices: np.ndarray, dist: np.ndarray, parent: np.ndarray) -> None:
-        """Lower vertex distances where a candidate is shorter; queue bending vertices as pseudosources."""
-        if vertices.size == 0:
+    def _relax(self, corners: np.ndarray, dist: np.ndarray, parent: np.ndarray) -> None:
+        """Lower the distances of the vertices at ``corners`` (halfedges of their ``parent`` windows' faces,
+        from the vertex) where a candidate is shorter; queue bending vertices as pseudosources."""
+        if corners.size == 0:
             return
+        vertices = self.mesh.halfedge_tail[corners]
         first = smallest_per_key(vertices, dist)
-        v, d, p = vertices[first], dist[first], parent[first]
+        v, d, p, c = vertices[first], dist[first], parent[first], corners[first]
         better = d < self.vertex_distance[v] * (1 - 1e-14)
-        v, d, p = v[better], d[better], p[better]
+        v, d, p, c = v[better], d[better], p[better], c[better]
         if v.size == 0:
             return
         self.vertex_distance[v] = d
         self.vertex_parent[v] = p
+        self._vertex_corner[v] = c
         self._birth[v] += 1
         bends = v[self._bends[v]]
         self._ps = np.concatenate([self._ps, bends])
@@ -429,8 +433,7 @@ class GeodesicField:
         mesh, W = self.mesh, self.W
         Pf = mesh.face_points.ravel()
         to_edge, length, apex = _edge_frames(mesh)
-        parent = self.vertex_parent[verts]
-        corner_in = corner_halfedges(mesh, W.he[parent] // 3, verts)
+        parent, corner_in = self.vertex_parent[verts], self._vertex_corner[verts]
         back = W.img[parent] - Pf[corner_in]  # towards where the geodesic came from
         theta = mesh.angle_sums[verts]
         boundary = mesh.is_boundary_vertex[verts]
@@ -453,12 +456,12 @@ class GeodesicField:
         shift = np.where(wraps, s - th, s)
         a0 = np.maximum(shift, 0.0) - shift
         a1 = np.minimum(shift + spread, width) - shift
-        # Boundary vertex: [0, ab-π] and [ab+π, θ]; a corner meets at most one of them.
-        first_a1 = np.minimum(lo + spread, ab - np.pi + slack) - lo
-        second_a0 = np.maximum(lo, ab + np.pi - slack) - lo
-        use_first = first_a1 >= 0
-        a0 = np.where(bd, np.where(use_first, 0.0, second_a0), a0)
-        a1 = np.where(bd, np.where(use_first, first_a1, spread), a1)
+        if bd.any():  # boundary vertex: [0, ab-π] and [ab+π, θ]; a corner meets at most one of them
+            first_a1 = np.minimum(lo + spread, ab - np.pi + slack) - lo
+            second_a0 = np.maximum(lo, ab + np.pi - slack) - lo
+            use_first = first_a1 >= 0
+            a0 = np.where(bd, np.where(use_first, 0.0, second_a0), a0)
+            a1 = np.where(bd, np.where(use_first, first_a1, spread), a1)
         sel = a1 >= a0
         h, u, a0, a1 = h[sel], u[sel], a0[sel], a1[sel]
         if h.size == 0:
@@ -468,9 +471,8 @@ class GeodesicField:
         chain = self.chains.append(label=label, sigma=sigma, ps=u, birth=self._birth[u], corner=h)
         direct = W.append(he=h, u0=0.0, u1=1.0, img=Pf[h], rot=1.0, root=chain, parent=-1)
         nxt, prv = mesh.halfedge_next[h], mesh.halfedge_prev[h]
-        tail = mesh.halfedge_tail
         self._relax(
-            np.concatenate([tail[nxt], tail[prv]]),
+            np.concatenate([nxt, prv]),
             np.concatenate([sigma + length[h], sigma + length[prv]]),
             np.concatenate([direct, direct]),
         )
@@ -590,7 +592,7 @@ class GeodesicField:
             idx = np.flatnonzero(chained)
             u = ps[W.root[w[idx]]]
             wp = self.vertex_parent[u]
-            travel = self.mesh.face_points.ravel()[corner_halfedges(self.mesh, W.he[wp] // 3, u)] - W.img[wp]
+            travel = self.mesh.face_points.ravel()[self._vertex_corner[u]] - W.img[wp]
             d[idx] = travel / np.abs(travel)
             w[idx] = wp
             chained[idx] = ps[W.root[wp]] >= 0
@@ -644,7 +646,7 @@ class GeodesicField:
                 break
             # The segment started at a vertex the path bends around; continue from how it got there.
             w = self.vertex_parent[vertex]
-            corner = corner_halfedges(mesh, np.array([W.he[w] // 3]), np.array([vertex]))
+            corner = self._vertex_corner[[vertex]]
             end = complex(mesh.face_points.flat[corner[0]])
             at_vertex = SurfacePoints(corner // 3, np.eye(3)[corner % 3])
             final = arrival_to_basis(mesh, at_vertex, corner // 3, _unit([end - W.img[w]]))[0]
