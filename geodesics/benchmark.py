@@ -35,17 +35,39 @@ class Row:
 #: Untimed runs first: per-mesh precomputation is shared by all queries, and the first runs in a
 #: process also pay for the allocator growing its heap; an interactive session is past both.
 WARMUP = 3
+#: Ours and the peer are timed in this many alternating blocks of runs: a burst of load from other jobs
+#: on a shared machine (tens of milliseconds) then slows some runs of both, not every run of one.
+BLOCKS = 3
+
+
+def _median_times(fns: list[Callable[[], object]], repeat: int) -> list[float]:
+    """Median seconds of each of ``fns`` over ``repeat`` runs (rounded up to whole blocks) after
+    :data:`WARMUP` untimed ones, the runs alternating between them in :data:`BLOCKS` blocks."""
+    for fn in fns:
+        for _ in range(WARMUP):
+            fn()
+    times: list[list[float]] = [[] for _ in fns]
+    for _ in range(BLOCKS):
+        for fn, spent in zip(fns, times, strict=True):
+            for _ in range(-(-repeat // BLOCKS)):
+                start = time.perf_counter()
+                fn()
+                spent.append(time.perf_counter() - start)
+    return [float(np.median(spent)) for spent in times]
 
 
 def _median_time(fn: Callable[[], object], repeat: int) -> float:
-    for _ in range(WARMUP):
-        fn()
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
+    return _median_times([fn], repeat)[0]
+
+
+def _beside(
+    ours: Callable[[], object], peer: Callable[[], object] | None, repeat: int
+) -> tuple[float, float | None]:
+    """Median seconds of ``ours`` and of ``peer`` (None where there is no peer), timed alternately."""
+    if peer is None:
+        return _median_time(ours, repeat), None
+    ours_time, peer_time = _median_times([ours, peer], repeat)
+    return ours_time, peer_time
 
 
 def _random_points(mesh, k, rng) -> SurfacePoints:
@@ -63,8 +85,11 @@ def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | Non
     say("exp_map")
     origins = _random_points(mesh, rays, rng)
     z = 0.1 * diameter * np.exp(1j * rng.uniform(0, 2 * np.pi, rays))
-    ours = _median_time(lambda: exp_map(mesh, origins, z), repeat)
-    peer, peer_name, note = None, "potpourri3d GeodesicTracer (looped)", "not installed"
+
+    def ours():
+        return exp_map(mesh, origins, z)
+
+    theirs, peer_name, note = None, "potpourri3d GeodesicTracer (looped)", "not installed"
     try:
         import potpourri3d
 
@@ -77,13 +102,13 @@ def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | Non
                 tracer.trace_geodesic_from_face(int(faces[i]), bary[i], directions[i]) for i in range(rays)
             ]
 
-        peer = _median_time(theirs, repeat)
         ends = np.array([p[-1] for p in theirs()])
-        gap = np.max(np.linalg.norm(ends - exp_map(mesh, origins, z).points.positions(mesh), axis=1))
+        gap = np.max(np.linalg.norm(ends - ours().points.positions(mesh), axis=1))
         note = f"end points agree to {gap / diameter:.1e} x diameter"
     except ImportError:
         pass
-    rows.append(Row(f"exp_map: {rays} rays, 10% of the diameter long", ours, peer, peer_name, note))
+    task = f"exp_map: {rays} rays, 10% of the diameter long"
+    rows.append(Row(task, *_beside(ours, theirs, repeat), peer_name, note))
 
     say("log_map")
     origin = SurfacePoints.from_vertices(mesh, [int(rng.integers(mesh.n_vertices))])
@@ -92,8 +117,11 @@ def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | Non
     for share in (0.25, 1.0):
         radius = share * distance.max()
         targets = pool[np.flatnonzero(distance <= radius)[:rays]]
-        ours = _median_time(lambda t=targets: log_map(mesh, origin, t), repeat)
-        peer, note = None, "not installed"
+
+        def ours(t=targets):
+            return log_map(mesh, origin, t)
+
+        theirs, note = None, "not installed"
         try:
             import pygeodesic.geodesic as pygeodesic
 
@@ -102,9 +130,10 @@ def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | Non
             nearby = np.flatnonzero(
                 GeodesicField(mesh, origin, max_distance=radius).vertex_distance <= radius
             )
-            peer = _median_time(
-                lambda s=solver, v=source, n=nearby, r=radius: s.geodesicDistances(v, n, r), repeat
-            )
+
+            def theirs(s=solver, v=source, n=nearby, r=radius):
+                return s.geodesicDistances(v, n, r)
+
             note = "peer: distances at vertices only, no directions"
         except ImportError:
             pass
@@ -112,8 +141,7 @@ def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | Non
         rows.append(
             Row(
                 f"log_map (exact): {len(targets)} targets {where}",
-                ours,
-                peer,
+                *_beside(ours, theirs, repeat),
                 "pygeodesic MMP (Kirsanov)",
                 note,
             )
