@@ -48,8 +48,9 @@ class SurfacePoints:
             )
         b0, b1, b2 = bary.T  # row reductions over three columns are much faster done by hand
         total = b0 + b1 + b2
-        if not np.all((np.minimum(np.minimum(b0, b1), b2) >= -TOLERANCE) & (np.abs(total - 1) <= TOLERANCE)):
-            _raise_invalid(bary)
+        valid = (np.minimum(np.minimum(b0, b1), b2) >= -TOLERANCE) & (np.abs(total - 1) <= TOLERANCE)
+        if not valid.all():
+            _raise_invalid(bary, np.flatnonzero(~valid))
         tiny = bary < SNAP
         if tiny.any():
             bary[tiny] = 0.0
@@ -168,12 +169,14 @@ class SurfacePoints:
         return nonzero[:, 0] + nonzero[:, 1] + nonzero[:, 2], nonzero[:, 1] + 2 * nonzero[:, 2]
 
 
-def _raise_invalid(bary: np.ndarray) -> None:
-    """Raise MeshError naming the rows of ``bary`` (k, 3) that are not barycentric coordinates."""
-    bad = np.flatnonzero(~np.all(np.isfinite(bary), axis=1))
-    if bad.size:
-        raise MeshError(f"surface points {describe_ids(bad)} have NaN or infinite barycentric coordinates")
-    bad = np.flatnonzero((bary.min(1) < -TOLERANCE) | (np.abs(bary.sum(1) - 1) > TOLERANCE))
+def _raise_invalid(bary: np.ndarray, bad: np.ndarray) -> None:
+    """Raise MeshError naming the rows ``bad`` of ``bary`` (k, 3), which are not barycentric coordinates:
+    those with NaN or infinite entries first."""
+    infinite = np.flatnonzero(~np.all(np.isfinite(bary), axis=1))
+    if infinite.size:
+        raise MeshError(
+            f"surface points {describe_ids(infinite)} have NaN or infinite barycentric coordinates"
+        )
     raise MeshError(
         f"surface points {describe_ids(bad)} have barycentric coordinates that are negative or do not "
         f"sum to one (e.g. {bary[bad[0]].tolist()})"
