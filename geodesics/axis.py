@@ -22,7 +22,7 @@ from .exact import GeodesicField, Path
 from .maps import geodesic_path, transport
 from .mesh import TriMesh
 from .points import SurfacePoints
-from .tangent import arrival_to_basis, from_face_frame
+from .tangent import arrival_to_basis, corner_halfedges, from_face_frame
 from .trace import exp_map
 
 #: Turning angles this close to 1 are straight: such runs of segments are traced as one geodesic.
@@ -296,5 +296,5 @@ def _position_in(mesh: TriMesh, x: SurfacePoints, faces: np.ndarray) -> np.ndarr
         out[moved] = mesh.halfedge_offset[e] + mesh.halfedge_rotation[e] * z[moved]
     at = v >= 0
     if np.any(at):
-        out[at] = mesh.face_points[faces[at], np.argmax(mesh.faces[faces[at]] == v[at, None], axis=1)]
+        out[at] = mesh.face_points.ravel()[corner_halfedges(mesh, faces[at], v[at])]
     return out

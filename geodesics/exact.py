@@ -34,7 +34,7 @@ from .arrays import ranges, smallest_per_key
 from .errors import GeodesicError, describe_ids
 from .mesh import TriMesh, per_mesh
 from .points import SurfacePoints
-from .tangent import arrival_to_basis, face_to_vertex
+from .tangent import arrival_to_basis, corner_halfedges, face_to_vertex
 
 #: Relative margin by which a path must be shorter for a rule to discard a window.
 PRUNE_MARGIN = 1e-10
@@ -229,17 +229,16 @@ class GeodesicField:
 
     def _seed_sources(self) -> None:
         mesh = self.mesh
-        P = mesh.face_points
+        Pf = mesh.face_points.ravel()
         v, e = self.sources.vertex_ids(mesh), self.sources.edge_halfedges(mesh)
         label, face, pos, rot, corner = _root_faces(mesh, self.sources)
         chain = self.chains.append(label=label, sigma=0.0, ps=-1, birth=0, corner=corner)
         he = np.where(corner >= 0, corner, 3 * face)
         direct = self.W.append(he=he, u0=0.0, u1=1.0, img=pos, rot=rot, root=chain, parent=-1)
         # Vertices of root faces are reached by straight segments inside those faces.
-        corners = (3 * face[:, None] + np.arange(3)).ravel()
-        self._relax(corners, np.abs(P.ravel()[corners] - np.repeat(pos, 3)), np.repeat(direct, 3))
-        # Windows on the far side of each root face edge that does not hold the source.
         h = 3 * face[:, None] + np.arange(3)
+        self._relax(h.ravel(), np.abs(Pf[h.ravel()] - np.repeat(pos, 3)), np.repeat(direct, 3))
+        # Windows on the far side of each root face edge that does not hold the source.
         on_edge = np.zeros(h.shape, bool)
         se, sv = e[label], v[label]
         on_edge |= (h == se[:, None]) | (h == np.where(se >= 0, mesh.twin[np.maximum(se, 0)], -2)[:, None])
@@ -247,7 +246,6 @@ class GeodesicField:
         ok = ~on_edge & (mesh.twin[h] >= 0)
         row, col = np.nonzero(ok)
         hh = h[row, col]
-        Pf = P.ravel()
         self._queue(
             _to_segment(pos[row], Pf[hh], Pf[mesh.halfedge_next[hh]], 0.0, 1.0),
             he=mesh.twin[hh],
@@ -563,7 +561,7 @@ class GeodesicField:
         moved = reached & ~at & (face != points.faces)
         hm = e[moved]
         here[moved] = mesh.halfedge_offset[hm] + mesh.halfedge_rotation[hm] * z[moved]
-        here[at] = mesh.face_points[face[at], np.argmax(mesh.faces[face[at]] == v[at, None], axis=1)]
+        here[at] = mesh.face_points.ravel()[corner_halfedges(mesh, face[at], v[at])]
         return best, dist, face, here
 
     def query(self, points: SurfacePoints) -> GeodesicQuery:
@@ -622,8 +620,7 @@ class GeodesicField:
             while W.parent[w] >= 0:
                 he = W.he[w]
                 A, B = mesh.face_points.flat[he], mesh.face_points.flat[mesh.halfedge_next[he]]
-                d = end - W.img[w]
-                u = float(np.clip(_cross(d, W.img[w] - A) / _cross(d, B - A), 0.0, 1.0))
+                u = float(_hit(W.img[w], end, A, B))
                 crossing = np.zeros(3)
                 crossing[[he % 3, (he + 1) % 3]] = 1 - u, u
                 faces.append(he // 3)

@@ -16,7 +16,7 @@ import numpy as np
 from .errors import GeodesicError, MeshError
 from .mesh import TriMesh, per_mesh
 from .points import SurfacePoints
-from .tangent import arrival_to_basis, face_to_vertex, to_face_frame, vertex_to_face
+from .tangent import arrival_to_basis, corner_halfedges, face_to_vertex, to_face_frame, vertex_to_face
 
 #: A ray passing within this barycentric distance of a vertex goes through the vertex.
 VERTEX_SNAP = 1e-11
@@ -98,7 +98,7 @@ def exp_map(mesh: TriMesh, origins: SurfacePoints, z) -> Trace:
     at_vertex = v0 >= 0
     if np.any(at_vertex):  # the start face was chosen by direction: put the vertex's coordinate there
         bary[at_vertex] = 0
-        local = np.argmax(mesh.faces[faces[at_vertex]] == v0[at_vertex, None], axis=1)
+        local = corner_halfedges(mesh, faces[at_vertex], v0[at_vertex]) % 3
         bary[np.flatnonzero(at_vertex), local] = 1
 
     walk = _Walk(mesh, faces, bary, d, length)
