@@ -305,7 +305,7 @@ def check_rig(scene: bpy.types.Scene) -> RigReport:
 
 
 def describe_plan(plan) -> RigReport:
-    """The panel's lines for a :class:`solver.controls.Plan`."""
+    """The panel's lines for a :class:`solver.rig.controls.Plan`."""
     lines = [f"Wrist: {plan.hand_root}"]
     if plan.root is None:
         lines.append("Nothing moves the wrist; only the fingers are solved")

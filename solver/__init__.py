@@ -3,8 +3,8 @@
 * :class:`Rig` — Blender-exact armatures: bone rest matrices, Euler-angle DOFs, limits, forward kinematics.
 * :class:`SkinnedMesh` — Blender's linear blend skinning with analytic derivatives.
 * :class:`Armature` and :class:`ControlRig` — production rigs (Rigify) posed through their controls:
-  constraints, drivers and B-Bones as Blender evaluates them (:mod:`solver.controls`, :mod:`solver.bones`,
-  :mod:`solver.constraints`, :mod:`solver.bbone`), with exact derivatives (:mod:`solver.analytic`).
+  constraints, drivers and B-Bones as Blender evaluates them (:mod:`solver.rig`, what Blender does to an
+  armature), with exact derivatives.
 * :class:`ContactIK` — Eq. 2 of Contact Edit (plus the markers, table and keyed-pose terms of the
   retargeting paper), solved with NLopt; :class:`Weights`, :class:`SolveResult`.
 * :mod:`solver.hands` and :mod:`solver.objects` — procedural rigged hands and closed test objects.
@@ -12,14 +12,11 @@
 """
 
 from . import hands, objects
-from .control_rig import ControlRig
-from .controls import Armature, Plan
 from .errors import SolverError
 from .grasp import GraspResult, flex_to_contact, grasp
 from .ik import ContactIK, Markers, Progress, SolveResult, Weights
-from .rig import Kinematics, Rig
+from .rig import Armature, ControlRig, Kinematics, Plan, Rig, SkinnedMesh, normalize_vertex_groups
 from .sdf import Box, HalfSpace, MeshSDF
-from .skinning import SkinnedMesh, normalize_vertex_groups
 
 __all__ = [
     "Armature",

@@ -42,8 +42,8 @@ from geodesics import SurfacePoints, TriMesh
 
 from .errors import SolverError
 from .hands import Hand
+from .rig import SkinnedMesh
 from .sdf import MeshSDF
-from .skinning import SkinnedMesh
 
 #: Uniform samples of the curl before bisection.
 SAMPLES = 24

@@ -27,8 +27,7 @@ from scipy import sparse
 from geodesics import SurfacePoints, TriMesh
 
 from .errors import SolverError
-from .rig import Rig
-from .skinning import SkinnedMesh
+from .rig import Rig, SkinnedMesh
 from .subdivision import Cage, catmull_clark, quads_to_triangles
 
 #: The manipulators :func:`make_hand` builds.
@@ -169,7 +168,7 @@ _ALIEN = _HandSpec(
 
 
 class Hand(SkinnedMesh):
-    """A procedural manipulator: a :class:`~solver.skinning.SkinnedMesh` that knows its anatomy.
+    """A procedural manipulator: a :class:`~solver.rig.skinning.SkinnedMesh` that knows its anatomy.
 
     Attributes
     ----------

@@ -45,7 +45,7 @@ iterates and the same joint angles.
 everywhere contort to chase contacts; a strong prior on the joints keeps the pose near rest, and
 leaving the root out lets the whole hand travel to the object freely.
 
-The gradient is analytic (reverse mode through the skinning, :class:`solver.skinning.VertexSkin`);
+The gradient is analytic (reverse mode through the skinning, :class:`solver.rig.skinning.VertexSkin`);
 finite-difference gradients, as the papers used, are available for comparison. The optimizer is NLopt's
 SLSQP by default, chosen by measurement (``contact-edit bench solver`` and the pose-recovery tests): on
 the 2,000-contact human-hand solve it reaches the same energy as L-BFGS in 1-1.3x its time, and over 50
@@ -68,7 +68,7 @@ import numpy as np
 from geodesics import SurfacePoints
 
 from .errors import SolverError, describe_ids
-from .skinning import SkinnedMesh
+from .rig import SkinnedMesh
 
 #: The length unit is the rest bounding-box diagonal divided by this (1 cm on a 25 cm hand).
 UNITS_PER_SIZE = 25.0

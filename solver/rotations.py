@@ -27,8 +27,8 @@ import numpy as np
 
 from geodesics import quaternions
 
-from . import analytic
 from .errors import SolverError
+from .rig import analytic
 
 #: Blender's Euler rotation modes.
 EULER_ORDERS = ("XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX")

@@ -1,4 +1,4 @@
-"""B-Bones (solver.bbone, contact_edit_addon.bridge.bbones) against Blender's own Armature modifier and
+"""B-Bones (solver.rig.bbone, contact_edit_addon.bridge.bbones) against Blender's own Armature modifier and
 ``PoseBone.bbone_segment_matrix`` / ``bbone_segment_index`` in bpy 5.0.1, and their complex-step
 derivatives against central finite differences."""
 
@@ -9,8 +9,9 @@ import pickle
 import numpy as np
 import pytest
 
-from solver import SolverError, analytic
-from solver.bbone import (
+from solver import SolverError
+from solver.rig import analytic
+from solver.rig.bbone import (
     BBone,
     BBoneHandle,
     BBoneStack,

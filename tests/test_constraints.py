@@ -10,10 +10,10 @@ import pickle
 import numpy as np
 import pytest
 
-from solver import analytic
-from solver.bones import Bone, channel_matrix, interpolate, rotation_matrix
-from solver.constraints import Constraint, Target, TargetBone, pose_bone
 from solver.errors import SolverError
+from solver.rig import analytic
+from solver.rig.bones import Bone, channel_matrix, interpolate, rotation_matrix
+from solver.rig.constraints import Constraint, Target, TargetBone, pose_bone
 
 from .blender import run_blender
 
@@ -121,7 +121,7 @@ def evaluate(bones, constraints, channels, world, names, given=None):
 
 
 SMALL_RIGS = """
-from solver.bones import convert_space
+from solver.rig.bones import convert_space
 bpy.ops.wm.read_factory_settings(use_empty=True)
 arm = bpy.data.armatures.new("A")
 ob = bpy.data.objects.new("A", arm)
@@ -316,7 +316,7 @@ def test_small_rigs_every_inherit_mode_and_constraint_match_blender(tmp_path):
     assert worst_local < 1e-6, worst_local
     assert worst < TOLERANCE, worst
     # Space conversion against Object.convert_space, with the parents posed as Blender posed them.
-    from solver.bones import convert_space
+    from solver.rig.bones import convert_space
 
     worst_space = 0.0
     for (M, conv), trial in zip(out["spaces"], out["poses"], strict=True):
@@ -676,8 +676,8 @@ def _dependencies_closed(bones, constraints, name):
 
 def _stacks(bones, constraints, names):
     """The bones grouped as a caller stacks them: equal dependency depth, bone_key and constraint keys."""
-    from solver.bones import bone_key
-    from solver.constraints import constraint_key
+    from solver.rig.bones import bone_key
+    from solver.rig.constraints import constraint_key
 
     depth, groups = {}, {}
     for name in _order(bones, constraints, names):
@@ -696,8 +696,8 @@ def _stacks(bones, constraints, names):
 
 def evaluate_stacked(bones, constraints, locals_, world, names):
     """Pose matrices of ``names`` by :func:`stack_pose_bones`, one call per stack of :func:`_stacks`."""
-    from solver.bones import BoneStack, World
-    from solver.constraints import ConstraintStack, stack_pose_bones
+    from solver.rig.bones import BoneStack, World
+    from solver.rig.constraints import ConstraintStack, stack_pose_bones
 
     world = World.of(world)
     poses = {}
@@ -1189,8 +1189,8 @@ def test_stacks_pose_a_rigify_like_hand_and_carry_derivatives():
 
 def test_stacks_refuse_bones_and_constraints_whose_discrete_settings_differ():
     """bone_key and constraint_key separate what one stack cannot hold; stacks of mixed keys are refused."""
-    from solver.bones import BoneStack, bone_key
-    from solver.constraints import ConstraintStack, constraint_key, parent_needed
+    from solver.rig.bones import BoneStack, bone_key
+    from solver.rig.constraints import ConstraintStack, constraint_key, parent_needed
 
     root = Bone("root", np.eye(4), 1.0)
     a = Bone("a", np.eye(4), 0.5, "root")

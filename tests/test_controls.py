@@ -1,5 +1,5 @@
-"""Production rigs posed through their controls (solver.controls), without Blender: a plain rig described as
-an armature must pose exactly as solver.Rig does, derivatives must match finite differences, and the
+"""Production rigs posed through their controls (solver.rig.controls), without Blender: a plain rig described
+as an armature must pose exactly as solver.Rig does, derivatives must match finite differences, and the
 analysis must find the wrist, the root control and the finger controls of a Rigify-like mechanism, and name
 what it cannot reproduce."""
 
@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from solver import ContactIK, SkinnedMesh, SolverError
-from solver.bones import Bone
-from solver.constraints import Constraint, Target
-from solver.control_rig import ControlRig, rotation_vector_matrix
-from solver.controls import Armature, PoseBone
 from solver.hands import make_hand
+from solver.rig.bones import Bone
+from solver.rig.constraints import Constraint, Target
+from solver.rig.control_rig import ControlRig, rotation_vector_matrix
+from solver.rig.controls import Armature, PoseBone
 from solver.rotations import euler_to_matrix
 
 

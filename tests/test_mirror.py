@@ -23,7 +23,7 @@ from geodesics.mirror import MirrorMap, mirror_contacts, reflect, topology_class
 from geodesics.primitives import icosphere
 from geodesics.tangent import tangent_to_3d
 from solver import hands
-from solver.mirror import (
+from solver.rig.mirror import (
     BBONE_SCALARS,
     ROTATION_MODES,
     PoseChannel,

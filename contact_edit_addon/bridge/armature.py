@@ -3,7 +3,7 @@ armature's controls, and poses back.
 
 Whatever rig deforms the hand (a plain armature of deform bones, or a production rig such as Rigify whose
 deform bones follow mechanism bones and controls through constraints, with B-Bones), the solver poses
-what Blender's Armature modifier deforms, exactly: :mod:`solver.controls` models the part of the rig
+what Blender's Armature modifier deforms, exactly: :mod:`solver.rig.controls` models the part of the rig
 between the controls and the deform bones, and everything else is read from Blender's evaluated pose.
 The Armature modifier itself must be plain linear blend skinning by vertex groups (vertices whose deform
 weights sum to at most 0.0001 stay in place); anything else is refused by name.
@@ -23,9 +23,9 @@ from scipy import sparse
 
 from geodesics import SurfacePoints
 from solver import SkinnedMesh, SolverError
-from solver.control_rig import ControlRig
-from solver.controls import Armature, Plan
 from solver.retarget.propose import Skeleton
+from solver.rig.control_rig import ControlRig
+from solver.rig.controls import Armature, Plan
 from solver.rotations import euler_to_matrix, matrix_to_quaternion, quaternion_to_axis_angle
 
 from .errors import BridgeError
@@ -47,7 +47,7 @@ class PosedHand:
     hand, armature : str
         Object names (names, not references, so that undo cannot leave them dangling).
     skin : SkinnedMesh
-        The hand's rest mesh in armature space, bound to the :class:`~solver.controls.ControlRig` that
+        The hand's rest mesh in armature space, bound to the :class:`~solver.rig.controls.ControlRig` that
         poses it through the armature's controls.
     hand_to_armature : (4, 4)
         Hand object space to armature space (Blender's ``premat`` of the Armature modifier).
@@ -197,7 +197,7 @@ def contact_bones(rig: HandRig, faces: np.ndarray, points: SurfacePoints | None)
 def hand_plan(
     rig: HandRig, faces: np.ndarray, points: SurfacePoints | None = None, hand_root: str = ""
 ) -> Plan:
-    """What a solve of the hand would pose and what blocks it (:meth:`solver.controls.Armature.plan`).
+    """What a solve of the hand would pose and what blocks it (:meth:`solver.rig.controls.Armature.plan`).
 
     ``hand_root`` names the wrist bone; empty finds it from the bones under the contact ``points``.
     """

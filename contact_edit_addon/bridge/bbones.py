@@ -1,12 +1,12 @@
-"""A Blender bone's B-Bone settings as a :class:`solver.bbone.BBone`.
+"""A Blender bone's B-Bone settings as a :class:`solver.rig.bbone.BBone`.
 
 Everything a bone's B-Bone shape depends on except the evaluated pose is read here: the ``Bone``'s and
 the ``PoseBone``'s B-Bone properties and the rest data of the handle bones Blender resolves for it
 (``BKE_pchan_bbone_handles_get``: an ``AUTO`` start handle is the parent of a connected bone, an
 ``AUTO`` end handle the last connected child; other types use the custom handle bones). The caller adds
 the posed matrices (``PoseBone.matrix``) of the bone, of the handles named by
-:attr:`solver.bbone.BBone.handle_names`, and of the handle parents named by
-:attr:`~solver.bbone.BBone.handle_parent_names`.
+:attr:`solver.rig.bbone.BBone.handle_names`, and of the handle parents named by
+:attr:`~solver.rig.bbone.BBone.handle_parent_names`.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from solver import SolverError
-from solver.bbone import BBone, BBoneHandle
+from solver.rig.bbone import BBone, BBoneHandle
 
 from .errors import BridgeError
 
@@ -73,7 +73,7 @@ def read_bbone(armature_object, bone_name: str) -> BBone:
 
     Returns
     -------
-    solver.bbone.BBone
+    solver.rig.bbone.BBone
         Every field read from the ``Bone`` and ``PoseBone`` (the pose-level B-Bone values as they are
         now). Raises :class:`BridgeError` for a missing bone or a setting the solver rejects.
     """

@@ -1,4 +1,5 @@
-"""Bones and their constraints read from Blender as :mod:`solver.bones` / :mod:`solver.constraints` data.
+"""Bones and their constraints read from Blender as :mod:`solver.rig.bones` / :mod:`solver.rig.constraints`
+data.
 
 Every setting the solver's port of Blender's constraint evaluation reads is copied from bpy here; what it
 cannot model is recorded (``Constraint.refusal``) so that ``Constraint.unsupported()`` names it and the
@@ -11,8 +12,8 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from solver.bones import Bone
-from solver.constraints import DEFAULTS, Constraint, Target
+from solver.rig.bones import Bone
+from solver.rig.constraints import DEFAULTS, Constraint, Target
 from solver.rotations import EULER_ORDERS
 
 #: Constraint types whose targets are a list (``constraint.targets``) rather than ``target``/``subtarget``.
@@ -79,7 +80,7 @@ def _object_target(armature_object, obj, subtarget: str, head_tail: float, use_b
 
 
 def read_constraint(armature_object, constraint) -> Constraint | None:
-    """One bpy constraint as a :class:`solver.constraints.Constraint`, or None when Blender skips it."""
+    """One bpy constraint as a :class:`solver.rig.constraints.Constraint`, or None when Blender skips it."""
     if constraint.mute or not constraint.is_valid or constraint.influence <= 0:
         return None
     refusals = []

@@ -1,4 +1,4 @@
-"""A Blender armature as the solver's :class:`solver.controls.Armature`: every bone's rest data, evaluated
+"""A Blender armature as the solver's :class:`solver.rig.controls.Armature`: every bone's rest data, evaluated
 pose and channels, constraints, B-Bone, locks, limits, and what its drivers and IK chains read.
 
 Read from the *evaluated* armature (animation, drivers and constraints applied), so that whatever the
@@ -13,7 +13,7 @@ import bpy
 import numpy as np
 
 from solver import SolverError
-from solver.controls import Armature, DriverInput, PoseBone
+from solver.rig.controls import Armature, DriverInput, PoseBone
 from solver.rotations import EULER_ORDERS
 
 from .bbones import read_bbone
@@ -26,7 +26,7 @@ _CHANNELS = ("location", "rotation_euler", "rotation_quaternion", "rotation_axis
 
 
 def read_armature(armature: bpy.types.Object, depsgraph=None) -> Armature:
-    """Every bone of ``armature`` as the solver models it (see :mod:`solver.controls`).
+    """Every bone of ``armature`` as the solver models it (see :mod:`solver.rig.controls`).
 
     Raises
     ------

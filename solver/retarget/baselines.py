@@ -37,7 +37,7 @@ towards the rest pose (the open hand) and leave the root out (it is fixed). The 
 mean of the wrist and knuckle markers (on the back of the hand); each keypoint is the mean of its
 markers' points on the target and of the source positions they track, so on the same hand at the same
 pose the keyvectors agree exactly. The gradient is analytic (reverse mode through
-:class:`solver.skinning.PointSkin`), the solver NLopt's L-BFGS as the per-frame solves of
+:class:`solver.rig.skinning.PointSkin`), the solver NLopt's L-BFGS as the per-frame solves of
 :mod:`.frames`.
 
 **Tasks.** Both task lists are derived from the root-stage tasks of our method (:func:`.frames.build_tasks`)

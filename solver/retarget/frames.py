@@ -59,12 +59,11 @@ import numpy as np
 from geodesics import SurfacePoints
 from geodesics.rigid import rigid_fit
 
-from ..control_rig import ControlRig
 from ..errors import SolverError
 from ..ik import ContactIK, Markers, Weights
+from ..rig import ControlRig, SkinnedMesh
 from ..rotations import matrix_to_euler
 from ..sdf import Box
-from ..skinning import SkinnedMesh
 
 if TYPE_CHECKING:  # pragma: no cover
     from .annotations import HandPairAnnotation
@@ -268,8 +267,8 @@ class FrameResult:
 def root_from_transform(rig, G: np.ndarray, compatible=None) -> np.ndarray:
     """(6,) root DOFs that move the root by the rigid transform G (4, 4), armature space: for a
     :class:`~solver.Rig` (location, Euler angles) the root bone's pose matrix becomes
-    ``G @ matrix_local[0]``; for a :class:`~solver.control_rig.ControlRig` the hand root moves by G from
-    where it was read (:meth:`~solver.control_rig.ControlRig.root_dofs`). ``compatible`` (3,): the
+    ``G @ matrix_local[0]``; for a :class:`~solver.rig.control_rig.ControlRig` the hand root moves by G from
+    where it was read (:meth:`~solver.rig.control_rig.ControlRig.root_dofs`). ``compatible`` (3,): the
     rotation DOFs nearest to these, of the equal ones."""
     if isinstance(rig, ControlRig):
         return rig.root_dofs(G, compatible)

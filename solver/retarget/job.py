@@ -34,7 +34,7 @@ import numpy as np
 from geodesics import TriMesh
 
 from ..errors import SolverError
-from ..skinning import SkinnedMesh
+from ..rig import SkinnedMesh
 from .annotate import default_annotation, procedural_hand
 from .annotations import HandPairAnnotation
 from .detection import with_contacts

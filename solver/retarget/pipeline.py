@@ -49,8 +49,7 @@ import numpy as np
 from geodesics.files import write_atomically
 
 from ..errors import SolverError
-from ..rig import Rig
-from ..skinning import SkinnedMesh
+from ..rig import Rig, SkinnedMesh
 from .annotations import HandPairAnnotation
 from .baselines import Table, keypoint_tasks, keyvector_tasks, reseeded, solve_task
 from .executor import FrameStore, run_frames

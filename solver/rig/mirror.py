@@ -33,9 +33,9 @@ from numpy.typing import ArrayLike
 
 from geodesics.mirror import flip_name
 
+from ..errors import SolverError
 from .bones import quaternion_to_matrix
 from .constraints import normalized_matrix_to_euler
-from .errors import SolverError
 
 __all__ = [
     "BBONE_FLIPPED",
@@ -85,8 +85,8 @@ _ORDERS = {
 
 
 # ---------------------------------------------------------------------- Blender's rotation conversions
-# Ports of math_rotation_c.cc, vectorized over leading dimensions; the matrix ones are solver.bones' and
-# solver.constraints'.
+# Ports of math_rotation_c.cc, vectorized over leading dimensions; the matrix ones are solver.rig.bones' and
+# solver.rig.constraints'.
 
 
 def quat_to_euler(q, order: str = "XYZ") -> np.ndarray:

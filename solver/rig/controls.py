@@ -23,7 +23,7 @@ move the body above the hand. This module solves a hand on such a rig:
   what cannot be modelled exactly and affects the solved bones is a :class:`Blocker`, never guessed.
   Derivatives of the skinning matrices are exact, by complex-step differentiation (:mod:`.analytic`).
 
-:class:`solver.control_rig.ControlRig` then poses the plan: it stands where :class:`solver.Rig` stands for
+:class:`solver.rig.control_rig.ControlRig` then poses the plan: it stands where :class:`solver.Rig` stands for
 :class:`solver.SkinnedMesh` and :class:`solver.ContactIK`, with weights per deform bone and DOFs as above.
 """
 
@@ -36,8 +36,8 @@ from functools import cached_property
 
 import numpy as np
 
+from ..errors import SolverError
 from . import bbone, bones
-from .errors import SolverError
 
 #: A constraint whose result replaces the owner's whole transform (its parent and channels no longer
 #: matter) when it is one of these types in one of these owner spaces, mixed by REPLACE at influence 1.
@@ -60,7 +60,7 @@ class PoseBone:
 
     Attributes
     ----------
-    bone : solver.bones.Bone
+    bone : solver.rig.bones.Bone
         Rest data and flags (its ``parent`` names the parent bone).
     matrix : (4, 4)
         Blender's evaluated pose matrix (``pose_bone.matrix``), armature space: the value of this bone
@@ -70,9 +70,9 @@ class PoseBone:
     rotation : (3,) or (4,)
         The evaluated rotation in the bone's rotation mode (Euler angles, quaternion w x y z, or axis-angle
         angle x y z).
-    constraints : tuple of solver.constraints.Constraint
+    constraints : tuple of solver.rig.constraints.Constraint
         Active constraints in stack order.
-    bbone : solver.bbone.BBone or None
+    bbone : solver.rig.bbone.BBone or None
         The B-Bone shape of a deforming bone with more than one segment.
     deform : bool
     lock_location, lock_rotation : (3,) bool

@@ -52,9 +52,9 @@ Complex-step differentiation
 ----------------------------
 :func:`deform_matrices`, :func:`stack_deform_matrices` and :func:`spline_matrices` accept float64 or
 complex128 matrices with any leading batch dimensions and are analytic in them (see
-:mod:`solver.analytic`): branches are taken on real parts only. The stacked code applies the functions
+:mod:`solver.rig.analytic`): branches are taken on real parts only. The stacked code applies the functions
 numpy evaluates slowly on complex numbers (square roots, sines, logarithms, arc tangents) to the real
-part and carries the derivative in the imaginary part, as :func:`solver.analytic.atan2` does: exact for
+part and carries the derivative in the imaginary part, as :func:`solver.rig.analytic.atan2` does: exact for
 complex-step arrays, whose imaginary parts are infinitesimal. One deliberate choice: Blender treats a
 bone whose pose scale is non-uniform by more than 1e-6 in a separate "scaled" branch
 (``param->do_scale``); both branches give the same value when the scale is uniform, and complex inputs
@@ -72,7 +72,7 @@ the branches taken once per stack. It gives what :func:`deform_matrices` gives b
 calls it with one bone; the first, bone-by-bone port stays as the reference of the tests), to 1e-13.
 
 Complex-step arrays with many directions of one pose (real parts equal along the leading axes, as
-:func:`solver.analytic.directions` makes them) take a faster road: the per-bone state the curve is built
+:func:`solver.rig.analytic.directions` makes them) take a faster road: the per-bone state the curve is built
 from (handles, length, rolls, scales: 12 numbers) is differentiated with respect to the pose entries it
 reads, the curve is evaluated once with one complex-step direction per state variable, and the chain
 rule is applied to the directions' imaginary parts in one matrix product per bone. The derivatives are
@@ -98,9 +98,9 @@ from functools import cached_property
 
 import numpy as np
 
+from ..errors import SolverError
 from . import analytic
 from .bones import axis_angle_matrix
-from .errors import SolverError
 
 __all__ = [
     "HANDLE_TYPES",

@@ -1,16 +1,16 @@
 """Blender's bone constraints, exactly: ``BKE_pose_where_is_bone`` in numpy, for one bone or a stack.
 
 :func:`pose_bone` ports ``BKE_pose_where_is_bone`` (armature.cc): the local channel matrix through the
-parent (:func:`solver.bones.bone_to_pose`), then ``BKE_constraints_solve`` (constraint.cc): for each
+parent (:func:`solver.rig.bones.bone_to_pose`), then ``BKE_constraints_solve`` (constraint.cc): for each
 constraint the owner's world matrix is converted into the owner space, the targets' matrices
 (``constraint_target_to_mat4``, with ``head_tail``) into the target space, the type's ``*_evaluate`` runs,
 the result goes back to world space (not after Child Of: ``CONSTRAINT_SPACEONCE``) and is blended with
-the matrix before the constraint by :func:`solver.bones.interpolate` when the influence is below 1.
+the matrix before the constraint by :func:`solver.rig.bones.interpolate` when the influence is below 1.
 Connected bones keep their head ("prevent constraints breaking a chain").
 
 :func:`stack_pose_bones` does the same for ``g`` bones at once: bones whose discrete settings agree
-(:func:`solver.bones.bone_key`, and :func:`constraint_key` for each constraint of their stacks) are
-posed by one :class:`solver.bones.BoneStack` and one :class:`ConstraintStack` per constraint, the
+(:func:`solver.rig.bones.bone_key`, and :func:`constraint_key` for each constraint of their stacks) are
+posed by one :class:`solver.rig.bones.BoneStack` and one :class:`ConstraintStack` per constraint, the
 continuous settings (influence, ``head_tail``, rest lengths, inverse matrices, limits ...) being arrays
 over the stack. It works in pose space and skips what cannot change the result: constraints in world
 space whose type reads the same in pose space under the armature's world matrix (Copy Transforms with
@@ -22,7 +22,7 @@ Settings use Blender's RNA property names (``mix_mode``, ``use_offset``, ``head_
 modelled exactly is named by :meth:`Constraint.unsupported`, and :func:`pose_bone` refuses it.
 
 Everything is batched over leading dimensions and analytic for complex-step differentiation (see
-:mod:`solver.analytic` and :mod:`solver.bones`).
+:mod:`solver.rig.analytic` and :mod:`solver.rig.bones`).
 """
 
 from __future__ import annotations
@@ -33,6 +33,8 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import SolverError
+from ..rotations import EULER_ORDERS, euler_to_matrix, order_axes
 from . import analytic
 from .bones import (
     _AFTER,
@@ -76,8 +78,6 @@ from .bones import (
 from .bones import (
     shared as _shared,
 )
-from .errors import SolverError
-from .rotations import EULER_ORDERS, euler_to_matrix, order_axes
 
 #: Blender's defaults of the settings each modelled constraint type reads (RNA property names).
 DEFAULTS: dict[str, dict[str, Any]] = {
@@ -229,7 +229,7 @@ class Constraint:
     name : str
     influence : float
     owner_space, target_space : str
-        One of :data:`solver.bones.SPACES`.
+        One of :data:`solver.rig.bones.SPACES`.
     targets : tuple of Target
     settings : Mapping
         The type's settings by RNA property name; missing ones take Blender's defaults (:data:`DEFAULTS`).
@@ -516,7 +516,7 @@ def constraint_key(constraint: Constraint, targets: Mapping[str, Any], owner: Bo
     skipped: the key is ``("OFF",)``) or 1 (no blending), the type's discrete settings (mix modes, axis
     flags, volume modes, track axes, whether a Copy Scale power is 1 ...), the Euler orders it
     decomposes in (``AUTO`` resolved to the owner's), and per target: a bone or an object, whether
-    ``head_tail`` is 0, in the local target spaces the :func:`solver.bones.bone_key` of the target bone
+    ``head_tail`` is 0, in the local target spaces the :func:`solver.rig.bones.bone_key` of the target bone
     and its parent, for Armature constraints the weight's sign and the envelope options; and whether
     the ``CUSTOM`` space is a bone or an object.
 
@@ -611,7 +611,7 @@ class Slot:
     rest, rest_inverse : (g, 1, 4, 4) or None
         The target bones' rest matrices and their inverses.
     diff : tuple or None
-        ``LOCAL_OWNER_ORIENT``'s change of frame (:func:`solver.bones.owner_orientation`).
+        ``LOCAL_OWNER_ORIENT``'s change of frame (:func:`solver.rig.bones.owner_orientation`).
     """
 
     def __init__(self, kind: str):
@@ -671,7 +671,7 @@ class ConstraintStack:
         """The stack of ``constraints``, one per bone of ``owners``, all with one :func:`constraint_key`.
 
         ``targets`` maps the names of the bones they read (and of those bones' parents, for the local
-        target spaces) to their rest data (:class:`solver.bones.Bone` or :class:`TargetBone`).
+        target spaces) to their rest data (:class:`solver.rig.bones.Bone` or :class:`TargetBone`).
         """
         constraints, owners = tuple(constraints), tuple(owners)
         if not constraints or len(constraints) != len(owners):
@@ -1695,12 +1695,12 @@ def stack_pose_bones(
     Parameters
     ----------
     bone_stack : BoneStack
-        The bones (one :func:`solver.bones.bone_key`).
+        The bones (one :func:`solver.rig.bones.bone_key`).
     parent_poses : (..., g, 4, 4) array_like or None
         The parents' (final) pose matrices; None for root bones, or when :func:`parent_needed` says they
         are not read.
     locals : (..., g, 4, 4) array_like or None
-        The channel matrices (:func:`solver.bones.channel_matrix`), or None for identity channels; their
+        The channel matrices (:func:`solver.rig.bones.channel_matrix`), or None for identity channels; their
         translations are ignored for connected bones, as Blender does.
     constraint_stacks : sequence of ConstraintStack
         The bones' constraints, position by position (each stack holds the ``g`` constraints at one
@@ -1710,8 +1710,8 @@ def stack_pose_bones(
         bones (None for object targets).
     target_parent_poses : sequence of sequences, optional
         Likewise for :attr:`ConstraintStack.parent_inputs` (None where not needed).
-    world : (4, 4) array_like or solver.bones.World, optional
-        The armature object's ``matrix_world`` (default identity); pass a :class:`solver.bones.World`
+    world : (4, 4) array_like or solver.rig.bones.World, optional
+        The armature object's ``matrix_world`` (default identity); pass a :class:`solver.rig.bones.World`
         to precompute it once.
     shared : bool, optional
         Complex inputs are complex-step directions that share their values (real parts) across the
@@ -1889,7 +1889,7 @@ def pose_bone(
     parent_pose : (..., 4, 4) array_like or None
         The parent's (final) pose matrix.
     local : (..., 4, 4) array_like
-        The channel matrix (:func:`solver.bones.channel_matrix`); its translation is ignored for a
+        The channel matrix (:func:`solver.rig.bones.channel_matrix`); its translation is ignored for a
         connected bone, as Blender does.
     constraints : sequence of Constraint
         The bone's enabled constraints, in stack order.

@@ -35,9 +35,9 @@ from functools import cached_property
 
 import numpy as np
 
+from ..errors import SolverError
+from ..rotations import EULER_ORDERS, euler_to_matrix
 from . import analytic
-from .errors import SolverError
-from .rotations import EULER_ORDERS, euler_to_matrix
 
 #: Blender's ``Bone.inherit_scale`` modes.
 INHERIT_SCALE_MODES = ("FULL", "FIX_SHEAR", "ALIGNED", "AVERAGE", "NONE", "NONE_LEGACY")
@@ -552,7 +552,7 @@ def channel_matrix(location, rotation, scale):
         From :func:`rotation_matrix`.
     scale : (..., 3) array_like
 
-    Blender drops the location of connected bones; :func:`solver.constraints.pose_bone` does that.
+    Blender drops the location of connected bones; :func:`solver.rig.constraints.pose_bone` does that.
     """
     rotation, scale = np.asarray(rotation), np.asarray(scale)
     return _affine(rotation * scale[..., None, :], location)

@@ -1,5 +1,5 @@
 """The solver's rig for a production rig's hand: controls in, deform-bone skinning matrices and their exact
-derivatives out (see :mod:`solver.controls` for what is solved and why).
+derivatives out (see :mod:`solver.rig.controls` for what is solved and why).
 
 :class:`ControlRig` stands where :class:`solver.Rig` stands for :class:`solver.SkinnedMesh` and
 :class:`solver.ContactIK`. Its DOFs are the root control's three location channels and rotation vector
@@ -7,11 +7,11 @@ derivatives out (see :mod:`solver.controls` for what is solved and why).
 quaternion and axis-angle controls in the order farthest from gimbal lock at the pose read).
 
 Evaluation is compiled once: the bones between the controls and the deform bones are grouped by dependency
-depth and by what Blender does to them (:func:`solver.bones.bone_key`,
-:func:`solver.constraints.constraint_key`), and each group is posed at once
-(:func:`solver.constraints.stack_pose_bones`); the B-Bones bend in stacks too
-(:func:`solver.bbone.stack_deform_matrices`). Derivatives are complex steps (:mod:`solver.analytic`) along
-one direction per colour of DOFs that no skinning matrix depends on together.
+depth and by what Blender does to them (:func:`solver.rig.bones.bone_key`,
+:func:`solver.rig.constraints.constraint_key`), and each group is posed at once
+(:func:`solver.rig.constraints.stack_pose_bones`); the B-Bones bend in stacks too
+(:func:`solver.rig.bbone.stack_deform_matrices`). Derivatives are complex steps (:mod:`solver.rig.analytic`)
+along one direction per colour of DOFs that no skinning matrix depends on together.
 """
 
 from __future__ import annotations
@@ -23,11 +23,11 @@ import numpy as np
 from scipy import sparse
 from scipy.spatial.transform import Rotation
 
+from ..errors import SolverError
+from ..rotations import EULER_ORDERS, euler_to_matrix, matrix_to_euler
 from . import analytic, bbone, bones, constraints
 from .controls import Plan, handles
-from .errors import SolverError
-from .rig import clipped
-from .rotations import EULER_ORDERS, euler_to_matrix, matrix_to_euler
+from .kinematics import clipped
 
 #: A location column of the root control shorter than this (times the hand's size) does not move it.
 MIN_LOCATION_EFFECT = 1e-9

@@ -35,8 +35,8 @@ from scipy import sparse
 
 from geodesics.arrays import readonly
 
-from .errors import SolverError, describe_ids
-from .rotations import EULER_ORDERS, axis_rotation, matrix_to_euler, order_axes
+from ..errors import SolverError, describe_ids
+from ..rotations import EULER_ORDERS, axis_rotation, matrix_to_euler, order_axes
 
 #: Rest rotations must be orthonormal to this tolerance.
 ORTHONORMAL_TOLERANCE = 1e-6
