@@ -12,8 +12,8 @@ Conventions (those of Blender's ``mathutils`` and of pose bones' rotation modes)
   as Blender does for pose bones.
 * Axis-angle is ``(angle, x, y, z)`` (Blender's ``rotation_axis_angle``); the axis is normalized.
 
-Every function accepts float64 or complex128 arrays (complex-step differentiation, see :mod:`.analytic`):
-choices between solutions are made on real parts only.
+Every function accepts float64 or complex128 arrays (complex-step differentiation, see
+:mod:`solver.rig.analytic`): choices between solutions are made on real parts only.
 
 Conversions to matrices are exact to rounding; conversions from matrices return the representative
 Blender would: quaternions with ``w >= 0``, Euler angles in ``[-π, π]`` with the middle angle in

@@ -12,8 +12,9 @@ import pytest
 
 from solver.errors import SolverError
 from solver.rig import analytic
-from solver.rig.bones import Bone, channel_matrix, interpolate, rotation_matrix
+from solver.rig.bones import Bone, channel_matrix, rotation_matrix
 from solver.rig.constraints import Constraint, Target, TargetBone, pose_bone
+from solver.rig.interpolation import interp_m4_m4m4
 
 from .blender import run_blender
 
@@ -121,7 +122,7 @@ def evaluate(bones, constraints, channels, world, names, given=None):
 
 
 SMALL_RIGS = """
-from solver.rig.bones import convert_space
+from solver.rig.spaces import convert_space
 bpy.ops.wm.read_factory_settings(use_empty=True)
 arm = bpy.data.armatures.new("A")
 ob = bpy.data.objects.new("A", arm)
@@ -316,7 +317,7 @@ def test_small_rigs_every_inherit_mode_and_constraint_match_blender(tmp_path):
     assert worst_local < 1e-6, worst_local
     assert worst < TOLERANCE, worst
     # Space conversion against Object.convert_space, with the parents posed as Blender posed them.
-    from solver.rig.bones import convert_space
+    from solver.rig.spaces import convert_space
 
     worst_space = 0.0
     for (M, conv), trial in zip(out["spaces"], out["poses"], strict=True):
@@ -592,12 +593,12 @@ def test_interpolate_is_blenders_polar_blend():
     B = np.eye(4)
     B[:3, :3] = rotation_matrix("ZXY", rng.uniform(-1, 1, 3))
     B[:3, 3] = rng.normal(size=3)
-    assert np.allclose(interpolate(A, B, 0.0), A, atol=1e-12)
-    assert np.allclose(interpolate(A, B, 1.0), B, atol=1e-12)
+    assert np.allclose(interp_m4_m4m4(A, B, 0.0), A, atol=1e-12)
+    assert np.allclose(interp_m4_m4m4(A, B, 1.0), B, atol=1e-12)
     R = rotation_matrix("XYZ", np.array([0.4, 0.0, 0.0]))
     C = np.eye(4)
     C[:3, :3] = R @ np.diag([1.0, 3.0, 1.0])
-    mid = interpolate(np.eye(4), C, 0.5)
+    mid = interp_m4_m4m4(np.eye(4), C, 0.5)
     half = rotation_matrix("XYZ", np.array([0.2, 0.0, 0.0]))
     assert np.allclose(mid[:3, :3], half @ np.diag([1.0, 2.0, 1.0]), atol=1e-12)
 
@@ -696,8 +697,9 @@ def _stacks(bones, constraints, names):
 
 def evaluate_stacked(bones, constraints, locals_, world, names):
     """Pose matrices of ``names`` by :func:`stack_pose_bones`, one call per stack of :func:`_stacks`."""
-    from solver.rig.bones import BoneStack, World
+    from solver.rig.bones import BoneStack
     from solver.rig.constraints import ConstraintStack, stack_pose_bones
+    from solver.rig.spaces import World
 
     world = World.of(world)
     poses = {}

@@ -100,7 +100,7 @@ import numpy as np
 
 from ..errors import SolverError
 from . import analytic
-from .bones import axis_angle_matrix
+from .math_rotation import axis_angle_normalized_to_mat3
 
 __all__ = [
     "HANDLE_TYPES",
@@ -542,7 +542,7 @@ def _vec_roll_to_mat3(vec, roll):
     B[..., 2, 2] = 1 - z * z / theta
     B[..., 0, 2] = B[..., 2, 0] = -x * z / theta
     B = np.where(regular[..., None, None], B, np.diag([-1.0, -1.0, 1.0]))
-    return axis_angle_matrix(nor, np.sin(roll), np.cos(roll)) @ B
+    return axis_angle_normalized_to_mat3(nor, np.sin(roll), np.cos(roll)) @ B
 
 
 def _twist_y(M):

@@ -25,7 +25,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import SolverError
 from ..rotations import EULER_ORDERS, euler_to_matrix, matrix_to_euler
-from . import analytic, bbone, bones, constraints
+from . import analytic, bbone, bones, constraints, spaces
 from .controls import Plan, handles
 from .kinematics import clipped
 
@@ -73,7 +73,7 @@ class ControlRig:
     Parameters
     ----------
     plan : Plan
-        From :meth:`Armature.plan`; it must have no blockers.
+        From :meth:`~.controls.Armature.plan`; it must have no blockers.
 
     Attributes
     ----------
@@ -475,7 +475,7 @@ class _Program:
         self.initial = np.stack([arm[n].matrix for n in self.names])[:, None]
         self.rigid = np.array([index[n] for n in evaluated if n in plan.rigid], dtype=np.int64)
         self.rigid_rest = self.initial[self.rigid]
-        self.world = bones.World.of(arm.world)
+        self.world = spaces.World.of(arm.world)
         self._controls(rig, index)
         self.stacks = self._stacks(rig, [n for n in evaluated if n not in plan.rigid], index)
         self._deformers(rig, index)

@@ -34,8 +34,9 @@ from numpy.typing import ArrayLike
 from geodesics.mirror import flip_name
 
 from ..errors import SolverError
-from .bones import quaternion_to_matrix
-from .constraints import normalized_matrix_to_euler
+from ..rotations import EULER_ORDERS
+from .bones import ROTATION_MODES
+from .math_rotation import axis_angle_to_quat, eulO_to_quat, normalize_qt, quat_to_axis_angle, quat_to_eulO
 
 __all__ = [
     "BBONE_FLIPPED",
@@ -44,18 +45,12 @@ __all__ = [
     "MAXBONENAME",
     "ROTATION_MODES",
     "PoseChannel",
-    "axis_angle_to_quat",
-    "euler_to_quat",
     "flip_channels",
     "flip_name",
     "mirror_pose",
     "paste_channel",
-    "quat_to_axis_angle",
-    "quat_to_euler",
 ]
 
-#: Blender's rotation modes (``PoseBone.rotation_mode``).
-ROTATION_MODES = ("QUATERNION", "XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX", "AXIS_ANGLE")
 #: Size of Blender's bone-name buffer, terminating NUL included (flipped names are cut to 63 bytes).
 MAXBONENAME = 64
 #: Scalar B-Bone channels, and those of them that a flip negates.
@@ -72,84 +67,6 @@ BBONE_SCALARS = (
 BBONE_FLIPPED = ("bbone_curveinx", "bbone_curveoutx", "bbone_rollin", "bbone_rollout")
 #: Vector (3,) B-Bone channels (copied unchanged by a flip).
 BBONE_VECTORS = ("bbone_scalein", "bbone_scaleout")
-
-#: Blender's ``rotOrders``: the axes (i, j, k) and the parity of each Euler order.
-_ORDERS = {
-    "XYZ": ((0, 1, 2), 0),
-    "XZY": ((0, 2, 1), 1),
-    "YXZ": ((1, 0, 2), 1),
-    "YZX": ((1, 2, 0), 0),
-    "ZXY": ((2, 0, 1), 0),
-    "ZYX": ((2, 1, 0), 1),
-}
-
-
-# ---------------------------------------------------------------------- Blender's rotation conversions
-# Ports of math_rotation_c.cc, vectorized over leading dimensions; the matrix ones are solver.rig.bones' and
-# solver.rig.constraints'.
-
-
-def quat_to_euler(q, order: str = "XYZ") -> np.ndarray:
-    """(..., 3) Blender's ``quat_to_eulO``: Euler angles of quaternions (..., 4) (not normalized first)."""
-    return normalized_matrix_to_euler(quaternion_to_matrix(np.asarray(q, dtype=np.float64)), order)
-
-
-def euler_to_quat(e, order: str = "XYZ") -> np.ndarray:
-    """(..., 4) Blender's ``eulO_to_quat`` (and ``eul_to_quat`` for XYZ) of Euler angles (..., 3)."""
-    e = np.asarray(e, dtype=np.float64)
-    (i, j, k), parity = _ORDERS[order]
-    ti = e[..., i] * 0.5
-    tj = e[..., j] * (-0.5 if parity else 0.5)
-    th = e[..., k] * 0.5
-    ci, cj, ch = np.cos(ti), np.cos(tj), np.cos(th)
-    si, sj, sh = np.sin(ti), np.sin(tj), np.sin(th)
-    cc, cs, sc, ss = ci * ch, ci * sh, si * ch, si * sh
-    a = np.empty((*e.shape[:-1], 3))
-    a[..., i] = cj * sc - sj * cs
-    a[..., j] = cj * ss + sj * cc
-    a[..., k] = cj * cs - sj * sc
-    q = np.concatenate([(cj * cc + sj * ss)[..., None], a], -1)
-    if parity:
-        q[..., j + 1] = -q[..., j + 1]
-    return q
-
-
-def axis_angle_to_quat(axis, angle) -> np.ndarray:
-    """(..., 4) Blender's ``axis_angle_to_quat`` of ``axis`` (..., 3) and ``angle`` (...): a zero axis gives
-    the identity."""
-    axis = np.asarray(axis, dtype=np.float64)
-    angle = np.asarray(angle, dtype=np.float64)
-    length_sq = (axis * axis).sum(-1)
-    ok = length_sq > 1.0e-35  # normalize_v3_v3's threshold
-    unit = axis / np.sqrt(np.where(ok, length_sq, 1.0))[..., None]
-    half = 0.5 * angle
-    q = np.concatenate([np.cos(half)[..., None], unit * np.sin(half)[..., None]], -1)
-    return np.where(ok[..., None], q, np.array([1.0, 0.0, 0.0, 0.0]))
-
-
-def quat_to_axis_angle(q) -> tuple[np.ndarray, np.ndarray]:
-    """Blender's ``quat_to_axis_angle`` of ``q`` (..., 4): ``(axis (..., 3), angle (...))``, angle in [0, 2π].
-
-    Below a half-angle sine of 0.0005 the axis is not divided (so it is not unit length); a zero axis
-    becomes +y.
-    """
-    q = np.asarray(q, dtype=np.float64)
-    # Clipped: float32 rounds |w| <= 1 + ulp to 1 (Blender gives NaN for a stored |w| > 1, this does not).
-    half = np.arccos(np.clip(q[..., 0], -1.0, 1.0))
-    si = np.sin(half)
-    si = np.where(np.abs(si) < 0.0005, 1.0, si)
-    axis = q[..., 1:] / si[..., None]
-    zero = np.all(axis == 0, axis=-1)
-    axis = np.where(zero[..., None], np.array([0.0, 1.0, 0.0]), axis)
-    return axis, 2.0 * half
-
-
-def _normalize_qt(q: np.ndarray) -> np.ndarray:
-    """``normalize_qt``: a zero quaternion becomes (0, 1, 0, 0)."""
-    length = np.sqrt((q * q).sum(-1))
-    ok = length != 0
-    return np.where(ok[..., None], q / np.where(ok, length, 1.0)[..., None], np.array([0.0, 1.0, 0.0, 0.0]))
-
 
 # ---------------------------------------------------------------------- flipping channels
 
@@ -187,24 +104,24 @@ def flip_channels(location, rotation, mode: str, *, bbone: Mapping[str, np.ndarr
     location = np.array(location, dtype=np.float64)
     rotation = np.array(rotation, dtype=np.float64)
     _check_mode(mode)
-    width = 3 if mode in _ORDERS else 4
+    width = 3 if mode in EULER_ORDERS else 4
     if location.shape[-1:] != (3,) or rotation.shape[-1:] != (width,):
         raise SolverError(
             f"flip_channels needs location (..., 3) and a {mode} rotation (..., {width}); got "
             f"{location.shape} and {rotation.shape}"
         )
     location[..., 0] *= -1
-    if mode in _ORDERS:
+    if mode in EULER_ORDERS:
         rotation[..., 1:] *= -1
     elif mode == "AXIS_ANGLE":
-        e = quat_to_euler(axis_angle_to_quat(rotation[..., 1:], rotation[..., 0]), "XYZ")
+        e = quat_to_eulO(axis_angle_to_quat(rotation[..., 1:], rotation[..., 0]), "XYZ")
         e[..., 1:] *= -1
-        axis, angle = quat_to_axis_angle(euler_to_quat(e, "XYZ"))
+        axis, angle = quat_to_axis_angle(eulO_to_quat(e, "XYZ"))
         rotation = np.concatenate([angle[..., None], axis], -1)
     else:
-        e = quat_to_euler(_normalize_qt(rotation), "XYZ")
+        e = quat_to_eulO(normalize_qt(rotation), "XYZ")
         e[..., 1:] *= -1
-        rotation = euler_to_quat(e, "XYZ")
+        rotation = eulO_to_quat(e, "XYZ")
     flipped = {}
     for name, value in (bbone or {}).items():
         if name not in BBONE_SCALARS and name not in BBONE_VECTORS:
@@ -341,20 +258,20 @@ def paste_channel(source: PoseChannel, target: PoseChannel, flip: bool = True) -
     mode, src_mode = target.rotation_mode, source.rotation_mode
     if mode == src_mode:
         rotation = source._field_of(mode)
-    elif mode in _ORDERS:
+    elif mode in EULER_ORDERS:
         if src_mode == "AXIS_ANGLE":
             aa = source.rotation_axis_angle
-            rotation = quat_to_euler(axis_angle_to_quat(aa[1:], aa[0]), mode)
+            rotation = quat_to_eulO(axis_angle_to_quat(aa[1:], aa[0]), mode)
         else:
-            rotation = quat_to_euler(source.rotation_quaternion, mode)
+            rotation = quat_to_eulO(source.rotation_quaternion, mode)
     elif mode == "AXIS_ANGLE":
-        if src_mode in _ORDERS:
-            axis, angle = quat_to_axis_angle(euler_to_quat(source.rotation_euler, src_mode))
+        if src_mode in EULER_ORDERS:
+            axis, angle = quat_to_axis_angle(eulO_to_quat(source.rotation_euler, src_mode))
         else:
             axis, angle = quat_to_axis_angle(source.rotation_quaternion)
         rotation = np.concatenate([[angle], axis])
-    elif src_mode in _ORDERS:
-        rotation = euler_to_quat(source.rotation_euler, src_mode)
+    elif src_mode in EULER_ORDERS:
+        rotation = eulO_to_quat(source.rotation_euler, src_mode)
     else:  # axis-angle onto quaternion: Blender passes the target's own angle (pchan->rotAngle)
         rotation = axis_angle_to_quat(source.rotation_axis_angle[1:], target.rotation_axis_angle[0])
     bbone = {name: getattr(source, name) for name in BBONE_SCALARS + BBONE_VECTORS}

@@ -95,7 +95,7 @@ class SkinnedMesh:
         The rest mesh, in armature space.
     rig : Rig or ControlRig
         The bones that deform it: a plain :class:`~solver.rig.Rig`, or a production rig's hand posed
-        through its controls (:class:`~solver.rig.controls.ControlRig`, whose B-Bones deform by segments).
+        through its controls (:class:`~solver.rig.control_rig.ControlRig`, whose B-Bones deform by segments).
     weights : (n_vertices, n_deform_bones) array_like or scipy sparse matrix
         Non-negative, each row summing to one (or all zero: a vertex no bone moves); one column per
         ``rig.deform_bones``.
