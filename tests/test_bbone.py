@@ -15,7 +15,6 @@ from solver.rig.bbone import (
     BBone,
     BBoneHandle,
     BBoneStack,
-    _deform_reference,
     blend_segments,
     deform_matrices,
     spline_matrices,
@@ -23,6 +22,7 @@ from solver.rig.bbone import (
     stacks,
     vertex_segments,
 )
+from solver.rig.bbone.reference import deform_matrices_reference
 
 from .blender import run_blender
 
@@ -609,7 +609,7 @@ def random_poses(seed, bones, parents, directions=0, batch=()):
 
 def reference(bb, poses):
     """``deform_matrices`` of one bone, computed bone by bone by the first port."""
-    return _deform_reference(bb, *handle_args(bb, poses))
+    return deform_matrices_reference(bb, *handle_args(bb, poses))
 
 
 def test_stacks_group_by_discrete_settings_and_mask_missing_handles():

@@ -89,3 +89,62 @@ def _clamped(f, sign: float, x):
     inside = np.abs(x.real) < 1
     slope = np.divide(sign * x.imag, np.sqrt(1 - x.real**2, where=inside, out=np.ones(x.shape)))
     return angle + 1j * np.where(inside, slope, 0.0)
+
+
+# Functions numpy evaluates slowly on complex numbers, applied to the real part with the derivative carried
+# in the imaginary part (as :func:`atan2` does): exact for complex-step arrays, whose imaginary parts are
+# infinitesimal. ``shared``: the array's entries along axis -2 are complex-step directions of one value,
+# so the function of the real part is taken once, on the first of them.
+
+_SIGNS = np.array([-1.0, 1.0])[:, None, None, None]
+
+
+def as_complex(real, imag):
+    """real + i imag (numpy's complex multiplication of a real array by 1j is slow)."""
+    out = np.empty(np.broadcast_shapes(real.shape, imag.shape), np.complex128)
+    out.real = real
+    out.imag = imag
+    return out
+
+
+def real_part(x, shared: bool):
+    """The real part of x, or when ``shared`` of its first entry along axis -2, the direction axis of
+    a complex-step array whose entries there all have the same real part."""
+    return x.real[..., :1, :] if shared else x.real
+
+
+def sqrt(x, shared: bool = False):
+    if not np.iscomplexobj(x):
+        return np.sqrt(x)
+    root = np.sqrt(real_part(x, shared))
+    return as_complex(root, x.imag * (0.5 / root))
+
+
+def rsqrt(x, shared: bool = False):
+    """1 / sqrt(x)."""
+    if not np.iscomplexobj(x):
+        return 1.0 / np.sqrt(x)
+    inv = 1.0 / np.sqrt(real_part(x, shared))
+    return as_complex(inv, x.imag * (-0.5 * inv * inv * inv))
+
+
+def exp(x):
+    if not np.iscomplexobj(x):
+        return np.exp(x)
+    e = np.exp(x.real)
+    return as_complex(e, e * x.imag)
+
+
+def log(x):
+    if not np.iscomplexobj(x):
+        return np.log(x)
+    return as_complex(np.log(x.real), x.imag / x.real)
+
+
+def cos_sin(x, shared: bool = False):
+    """(2, ...) cos x and sin x."""
+    r = real_part(x, shared)
+    cs = np.stack([np.cos(r), np.sin(r)])
+    if not np.iscomplexobj(x):
+        return cs
+    return as_complex(cs, cs[::-1] * x.imag * _SIGNS.reshape(2, *(1,) * x.ndim))
