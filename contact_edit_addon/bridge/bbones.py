@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from solver import SolverError
-from solver.rig.bbone import BBone, BBoneHandle
+from solver.rig import BBone, BBoneHandle
 
 from .errors import BridgeError
 

@@ -12,8 +12,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from solver.rig.bones import Bone
-from solver.rig.constraints import DEFAULTS, Constraint, Target
+from solver.rig import DEFAULTS, Bone, Constraint, Target
 from solver.rotations import EULER_ORDERS
 
 #: Constraint types whose targets are a list (``constraint.targets``) rather than ``target``/``subtarget``.

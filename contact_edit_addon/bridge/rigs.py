@@ -13,7 +13,7 @@ import bpy
 import numpy as np
 
 from solver import SolverError
-from solver.rig.controls import Armature, DriverInput, PoseBone
+from solver.rig import Armature, DriverInput, PoseBone
 from solver.rotations import EULER_ORDERS
 
 from .bbones import read_bbone

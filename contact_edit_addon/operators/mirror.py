@@ -9,7 +9,7 @@ import numpy as np
 
 from geodesics import ContactSet, TriMesh
 from geodesics.mirror import MirrorMap, flip_name, mirror_contacts
-from solver.rig.mirror import PoseChannel, mirror_pose
+from solver.rig import PoseChannel, mirror_pose
 
 from .. import bridge, store
 from .common import ExplainedPoll, guarded, mesh_object, need_patch

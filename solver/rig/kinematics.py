@@ -37,6 +37,7 @@ from geodesics.arrays import readonly
 
 from ..errors import SolverError, describe_ids
 from ..rotations import EULER_ORDERS, axis_rotation, matrix_to_euler, order_axes
+from .protocol import RigLike
 
 #: Rest rotations must be orthonormal to this tolerance.
 ORTHONORMAL_TOLERANCE = 1e-6
@@ -71,10 +72,9 @@ def into_limits(theta, is_rotation, lower, upper) -> np.ndarray:
     return np.clip(T, lo, hi)
 
 
-def clipped(rig, theta) -> np.ndarray:
-    """θ (d,), or poses (F, d), of ``rig`` (a :class:`Rig` or a :class:`~solver.ControlRig`: anything
-    with ``check_theta``, ``n_dofs``, ``is_rotation``, ``lower`` and ``upper``) within its limits
-    (:func:`into_limits`); raises SolverError for poses of another shape or not finite."""
+def clipped(rig: RigLike, theta) -> np.ndarray:
+    """θ (d,), or poses (F, d), of ``rig`` within its limits (:func:`into_limits`); raises SolverError for
+    poses of another shape or not finite."""
     T = np.asarray(theta, dtype=np.float64)
     if T.ndim == 2:
         if T.shape[1] != rig.n_dofs or not np.isfinite(T).all():
@@ -192,20 +192,50 @@ class Rig:
         if len(set(self.names)) != nb:
             dup = sorted({n for n in self.names if self.names.count(n) > 1})
             raise SolverError(f"bone names must be unique; repeated: {', '.join(dup)}")
-        self.parents = readonly(np.array(parents, dtype=np.int64).reshape(-1))
-        if self.parents.size != nb:
-            raise SolverError(f"got {nb} bone names but {self.parents.size} parents")
-        bad = np.flatnonzero(self.parents[1:] >= np.arange(1, nb)) + 1
-        bad = np.union1d(bad, np.flatnonzero(self.parents[1:] < 0) + 1)
-        if self.parents[0] != -1:
+        self.parents = readonly(self._checked_parents(parents))
+        self.matrix_local = readonly(self._checked_rest(matrix_local))
+        self.lengths = readonly(self._checked_lengths(lengths))
+        self.rotation_modes: tuple[str, ...] = self._checked_modes(rotation_modes)
+
+        nd = 6 + 3 * (nb - 1)
+        self.dof_bone = readonly(np.concatenate([[0, 0, 0, 0, 0, 0], np.repeat(np.arange(1, nb), 3)]))
+        self.is_rotation = readonly(np.arange(nd) >= 3)
+        self.dof_component = readonly(np.concatenate([[0, 1, 2], np.tile([0, 1, 2], nb)]))
+        self.dof_names: tuple[str, ...] = tuple(
+            f"{self.names[b]}.{'rotation' if rot else 'location'}.{'xyz'[c]}"
+            for b, rot, c in zip(self.dof_bone, self.is_rotation, self.dof_component, strict=True)
+        )
+        lo, hi = self._checked_limits(lower, upper)
+        self.lower = readonly(lo)
+        self.upper = readonly(hi)
+        lk = np.zeros(nd, bool) if locked is None else np.array(locked, dtype=bool).reshape(-1)
+        if lk.size != nd:
+            raise SolverError(f"locked needs {nd} flags (one per DOF), got {lk.size}")
+        self.locked = readonly(lk)
+        self._forward_constants()
+
+    def _checked_parents(self, parents) -> np.ndarray:
+        """(b,) int64 parents, each listed before its bone, bone 0 the only root."""
+        nb = len(self.names)
+        P = np.array(parents, dtype=np.int64).reshape(-1)
+        if P.size != nb:
+            raise SolverError(f"got {nb} bone names but {P.size} parents")
+        bad = np.flatnonzero(P[1:] >= np.arange(1, nb)) + 1
+        bad = np.union1d(bad, np.flatnonzero(P[1:] < 0) + 1)
+        if P[0] != -1:
             raise SolverError(f"bone 0 ({self.names[0]!r}) must be the root (parent -1)", bones=[0])
         if bad.size:
             b = int(bad[0])
             raise SolverError(
                 f"bones {self._bone_list(bad)} must have a parent listed before them (bone {b} "
-                f"{self.names[b]!r} has parent {int(self.parents[b])}); only bone 0 is a root",
+                f"{self.names[b]!r} has parent {int(P[b])}); only bone 0 is a root",
                 bones=bad,
             )
+        return P
+
+    def _checked_rest(self, matrix_local) -> np.ndarray:
+        """(b, 4, 4) float64 rest matrices, finite and rigid."""
+        nb = len(self.names)
         M = np.array(matrix_local, dtype=np.float64)
         if M.shape != (nb, 4, 4):
             raise SolverError(f"matrix_local must have shape ({nb}, 4, 4), got {M.shape}")
@@ -224,7 +254,11 @@ class Rig:
                 "determinant +1 and a translation; Blender's bone.matrix_local has no scale)",
                 bones=bad,
             )
-        self.matrix_local = readonly(M)
+        return M
+
+    def _checked_lengths(self, lengths) -> np.ndarray:
+        """(b,) float64 lengths, positive and finite."""
+        nb = len(self.names)
         L = np.array(lengths, dtype=np.float64).reshape(-1)
         if L.size != nb:
             raise SolverError(f"got {nb} bones but {L.size} lengths")
@@ -236,7 +270,11 @@ class Rig:
                 f"(e.g. {self.names[bad[0]]!r}: {float(L[bad[0]])})",
                 bones=bad,
             )
-        self.lengths = readonly(L)
+        return L
+
+    def _checked_modes(self, rotation_modes) -> tuple[str, ...]:
+        """One Euler order per bone (``"XYZ"`` by default)."""
+        nb = len(self.names)
         modes = tuple(rotation_modes) if rotation_modes is not None else ("XYZ",) * nb
         if len(modes) != nb:
             raise SolverError(f"got {nb} bones but {len(modes)} rotation modes")
@@ -248,16 +286,12 @@ class Rig:
                 "Rig.theta_from_basis)",
                 bones=bad,
             )
-        self.rotation_modes: tuple[str, ...] = modes
+        return modes
 
-        nd = 6 + 3 * (nb - 1)
-        self.dof_bone = readonly(np.concatenate([[0, 0, 0, 0, 0, 0], np.repeat(np.arange(1, nb), 3)]))
-        self.is_rotation = readonly(np.arange(nd) >= 3)
-        self.dof_component = readonly(np.concatenate([[0, 1, 2], np.tile([0, 1, 2], nb)]))
-        self.dof_names: tuple[str, ...] = tuple(
-            f"{self.names[b]}.{'rotation' if rot else 'location'}.{'xyz'[c]}"
-            for b, rot, c in zip(self.dof_bone, self.is_rotation, self.dof_component, strict=True)
-        )
+    def _checked_limits(self, lower, upper) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) (d,) DOF limits: not NaN, not inverted; default unbounded location and ±π
+        rotations."""
+        nd = len(self.dof_bone)
         default_lo = np.where(self.is_rotation, -np.pi, -np.inf)
         lo = default_lo if lower is None else np.array(lower, dtype=np.float64).reshape(-1)
         hi = -default_lo if upper is None else np.array(upper, dtype=np.float64).reshape(-1)
@@ -278,14 +312,11 @@ class Rig:
                 dofs=bad,
                 bones=self.dof_bone[bad],
             )
-        self.lower = readonly(lo)
-        self.upper = readonly(hi)
-        lk = np.zeros(nd, bool) if locked is None else np.array(locked, dtype=bool).reshape(-1)
-        if lk.size != nd:
-            raise SolverError(f"locked needs {nd} flags (one per DOF), got {lk.size}")
-        self.locked = readonly(lk)
+        return lo, hi
 
-        # Constant parts of forward kinematics.
+    def _forward_constants(self) -> None:
+        """The constant parts of forward kinematics."""
+        nb, M = self.n_bones, self.matrix_local
         inv_local = np.linalg.inv(M)
         offset = M.copy()
         offset[1:] = inv_local[self.parents[1:]] @ M[1:]

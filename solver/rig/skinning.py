@@ -32,6 +32,7 @@ from geodesics.errors import MeshError
 from ..errors import SolverError, describe_ids
 from .control_rig import ControlRig
 from .kinematics import Kinematics, Rig, cross
+from .protocol import RigLike
 
 #: Row sums of normalized weights may miss one by this much.
 WEIGHT_TOLERANCE = 1e-6
@@ -106,7 +107,7 @@ class SkinnedMesh:
         For a shape mismatch, NaN, negative or unnormalized weights (naming the vertices).
     """
 
-    def __init__(self, mesh: TriMesh, rig: Rig | ControlRig, weights):
+    def __init__(self, mesh: TriMesh, rig: RigLike, weights):
         if not isinstance(mesh, TriMesh):
             raise SolverError(f"mesh must be a geodesics.TriMesh, got {type(mesh).__name__}")
         if not isinstance(rig, (Rig, ControlRig)):
