@@ -5,6 +5,7 @@ against."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -156,12 +157,20 @@ def checked_inputs(bb: BBone, pose, prev_pose, next_pose, prev_parent_pose, next
 def curve_joints(bb: BBone, rest: bool, mats=None, batch=()):
     """(..., segments + 1, 4, 4) the segment joint matrices in bone space (``BKE_pchan_bbone_spline_setup``
     with ``for_deform``): Blender's ``bbone_rest_mats`` (``rest``) or ``bbone_pose_mats``."""
-    segs, L = bb.segments, bb.length
-    start, end = bb.start, bb.end
     dtype = np.result_type(*(mats.values() if mats else ()), np.float64)
     one = np.ones(batch)
+    sc, imat, head, tail = _pose_frame(bb, rest, mats, batch, dtype)
+    ends = _handle_ends(bb, rest, mats, batch, imat, head, tail)
+    shape = _shape_params(bb, rest, one, ends.prev_scale, ends.next_scale)
+    h1, h2, roll1, roll2, length = _handles_compute(bb, sc, ends, shape, dtype, batch, one)
+    return _spline_compute(bb.segments, h1, h2, roll1, roll2, length, shape.scale_in, shape.scale_out, sc)
 
-    # BKE_pchan_bbone_spline_params_get
+
+def _pose_frame(bb: BBone, rest: bool, mats, batch, dtype):
+    """(sc, imat, head, tail) of ``BKE_pchan_bbone_spline_params_get``: the pose scale the curve is built
+    without (ones unless non-uniform, or complex), the inverse of the unscaled bone matrix, the bone's
+    head and tail."""
+    L = bb.length
     if rest:
         sc = np.ones((*batch, 3))
         imat = np.linalg.inv(bb.matrix_local)
@@ -182,12 +191,34 @@ def curve_joints(bb: BBone, rest: bool, mats=None, batch=()):
         head = P[..., :3, 3]
         tail = head + P[..., :3, 1] * L
 
+    return sc, imat, head, tail
+
+
+@dataclass
+class _HandleEnds:
+    """Where the handles put the curve's ends, in the unscaled bone's frame (``BBoneSplineParameters``'s
+    ``prev_h``, ``next_h``, ``prev_mat``, ``next_mat``), and the handles' own scales (``prev_scale``,
+    ``next_scale``; ones unless read)."""
+
+    prev_h: np.ndarray | None
+    prev_mat: np.ndarray | None
+    prev_scale: np.ndarray
+    next_h: np.ndarray | None
+    next_mat: np.ndarray | None
+    next_scale: np.ndarray
+
+
+def _handle_ends(bb: BBone, rest: bool, mats, batch, imat, head, tail) -> _HandleEnds:
+    """The handles' part of ``BKE_pchan_bbone_spline_params_get``, by handle type."""
+    L = bb.length
+    start, end = bb.start, bb.end
+
     def posed(key, handle):
         M = mats[key]
         h = M[..., :3, 3]
         return M, h, h + M[..., :3, 1] * handle.length
 
-    prev_joins, next_joins = bb.start_joins(), bb.end_joins()
+    prev_joins = bb.start_joins()
     prev_scale = np.ones((*batch, 3))
     next_scale = np.ones((*batch, 3))
     prev_h = prev_mat = next_h = next_mat = None
@@ -225,6 +256,27 @@ def curve_joints(bb: BBone, rest: bool, mats=None, batch=()):
         if not rest and bb.reads_handle_scale("end"):
             next_scale = _handle_scale(end, Pn, mats.get("next_parent"))
 
+    return _HandleEnds(prev_h, prev_mat, prev_scale, next_h, next_mat, next_scale)
+
+
+@dataclass
+class _ShapeParams:
+    """``BBoneSplineParameters``' ease, roll, scale and curve in and out, bone and pose levels combined."""
+
+    ease1: np.ndarray
+    ease2: np.ndarray
+    roll1: np.ndarray
+    roll2: np.ndarray
+    scale_in: np.ndarray
+    scale_out: np.ndarray
+    curve_in: np.ndarray
+    curve_out: np.ndarray
+
+
+def _shape_params(bb: BBone, rest: bool, one, prev_scale, next_scale) -> _ShapeParams:
+    """The ease, roll, scale and curve part of ``BKE_pchan_bbone_spline_params_get`` (the rest shape uses
+    the bone-level values alone)."""
+    start = bb.start
     pose_level = 0.0 if rest else 1.0
     ease1 = (bb.bone_ease_in + pose_level * bb.pose_ease_in) * one
     ease2 = (bb.bone_ease_out + pose_level * bb.pose_ease_out) * one
@@ -258,7 +310,18 @@ def curve_joints(bb: BBone, rest: bool, mats=None, batch=()):
         ease2 = ease2 * next_scale[..., 1]
         curve_out = curve_out * next_scale[..., 1:2]
 
-    # BKE_pchan_bbone_handles_compute (ease and offsets)
+    return _ShapeParams(ease1, ease2, roll1, roll2, scale_in, scale_out, curve_in, curve_out)
+
+
+def _handles_compute(bb: BBone, sc, ends: _HandleEnds, shape: _ShapeParams, dtype, batch, one):
+    """``BKE_pchan_bbone_handles_compute``: the curve's inner controls h1, h2 (..., 3) with ease and
+    offsets, the rolls in and out (the handles' rolls added), and the curve's length."""
+    L = bb.length
+    start, end = bb.start, bb.end
+    prev_joins, next_joins = bb.start_joins(), bb.end_joins()
+    prev_h, prev_mat, next_h, next_mat = ends.prev_h, ends.prev_mat, ends.next_h, ends.next_mat
+    ease1, ease2, roll1, roll2 = shape.ease1, shape.ease2, shape.roll1, shape.roll2
+    curve_in, curve_out = shape.curve_in, shape.curve_out
     length = L * sc[..., 1]
     epsilon = 1e-5 * L
     r1 = r2 = 0.0
@@ -290,7 +353,13 @@ def curve_joints(bb: BBone, rest: bool, mats=None, batch=()):
     h1 = h1 + np.stack([curve_in[..., 0] * sc[..., 0], 0 * one, curve_in[..., 1] * sc[..., 2]], axis=-1)
     h2 = h2 + np.stack([curve_out[..., 0] * sc[..., 0], 0 * one, curve_out[..., 1] * sc[..., 2]], axis=-1)
 
-    # BKE_pchan_bbone_spline_compute (for_deform)
+    return h1, h2, roll1, roll2, length
+
+
+def _spline_compute(segs: int, h1, h2, roll1, roll2, length, scale_in, scale_out, sc):
+    """``BKE_pchan_bbone_spline_compute`` (``for_deform``) and ``make_bbone_spline_matrix``: the joints
+    of the Bézier curve 0, h1, c3 + h2, c3 (c3 = (0, length, 0)) spaced by the segment scales."""
+    one = np.ones(length.shape)
     c3 = np.stack([0 * length, length, 0 * length], axis=-1)
     controls = np.stack([np.zeros_like(c3), h1 * one[..., None], c3 + h2, c3], axis=-2)  # (..., 4, 3)
     log_in = np.log(np.where(scale_in[..., 1].real < 1e-4, 1e-4, scale_in[..., 1]))
@@ -311,7 +380,6 @@ def curve_joints(bb: BBone, rest: bool, mats=None, batch=()):
     scale_x = f * scale_out[..., 0:1] + (1 - f) * scale_in[..., 0:1]
     scale_z = f * scale_out[..., 2:3] + (1 - f) * scale_in[..., 2:3]
 
-    # make_bbone_spline_matrix
     R = vec_roll_to_mat3(axis, roll)
     out = np.zeros((*R.shape[:-2], 4, 4), dtype=np.result_type(R, pos))
     out[..., :3, :3] = R / sc[..., None, :, None] * sc[..., None, None, :]  # S^-1 R S

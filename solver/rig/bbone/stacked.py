@@ -136,6 +136,35 @@ def stack_state(st: BBoneStack, P, prev, nxt, prev_parent, next_parent, shared: 
     ``length`` (L, g), ``roll`` (2, ., g) in and out, the pose scale ``sc`` (3, L, g), and the scales in
     and out (3, ., g). ``shared`` as for :func:`~solver.rig.analytic.real_part`."""
     complex_ = any(np.iscomplexobj(m) for m in (P, prev, nxt, prev_parent, next_parent) if m is not None)
+    sc, imat, length = _pose_frame(st, P, complex_, shared)
+    columns, mats = _handle_columns(st, P, prev, nxt)
+    nv = len(st.sides)
+    roll = st.roll
+    scale_in, scale_out = st.scale_in, st.scale_out
+    if not nv:
+        H = np.broadcast_to(_Y_AXIS[:, None, None, None], (3, 2, *P.shape[2:]))
+        ease, curve = st.ease, st.curve
+    else:
+        Y = _mm(imat, np.concatenate(columns, axis=1))  # (3, nv + 3 rolled, L, g)
+        H, unit = _handle_directions(st, Y[:, :nv], length, shared)
+        if st.rolled:
+            roll = roll + _handle_rolls(st, Y[:, nv:], unit, shared)
+        scale_in, scale_out, ease, curve = _handle_scales(st, P, mats, prev_parent, next_parent, length)
+    # cubic_tangent_factor_circle_v3, then the handles' lengths, ease and curve offsets
+    d = (H[:, 0] * H[:, 1]).sum(0)
+    if d.real.max() <= 1 - 1e-5 and d.real.min() >= -1 + 1e-5:
+        factor = 0.5 / (1 + analytic.sqrt((1 + d) * 0.5, shared))
+    else:
+        inside = (d.real <= 1 - 1e-5) & (d.real >= -1 + 1e-5)
+        factor = 0.5 / (1 + analytic.sqrt(np.where(inside, 1 + d, 1.0) * 0.5))
+        factor = np.where(inside, factor, np.where(d.real > 1 - 1e-5, 0.25, 0.5))
+    H = H * (ease * (factor * length * (1 / 0.75))) + curve * sc[:, None]
+    return H, length, roll, sc, scale_in, scale_out
+
+
+def _pose_frame(st: BBoneStack, P, complex_: bool, shared: bool):
+    """(sc, imat, length): the pose scale the curve is built without (ones unless non-uniform, or complex)
+    (3, L, g), the inverse of the unscaled pose's 3×3 block (3, 3, L, g), the curve's length (L, g)."""
     P3 = P[:3, :3]
     scale = analytic.sqrt((P3 * P3).sum(0), shared)  # column lengths
     if complex_:
@@ -149,19 +178,27 @@ def stack_state(st: BBoneStack, P, prev, nxt, prev_parent, next_parent, shared: 
     F = P.reshape(16, *P.shape[2:])[_COFACTOR]
     C = (F[0] * F[1] - F[2] * F[3]).reshape(3, 3, *P.shape[2:])
     imat = C.swapaxes(0, 1) * (sc / (P3[0] * C[0]).sum(0))[:, None]
-    head = P[:3, 3]
-    length = st.length * sc[1]
+    return sc, imat, st.length * sc[1]
 
-    def own(side, M):
-        if not side.partial:
-            return M
-        M = M.copy()
-        M[..., side.absent] = (P if np.iscomplexobj(M) else P.real)[..., side.absent]
+
+def _own(side, M, P):
+    """A handle's posed matrices ``M`` (4, 4, L, g) with each bone that has no handle there given its own
+    pose ``P`` (masked out later)."""
+    if not side.partial:
         return M
+    M = M.copy()
+    M[..., side.absent] = (P if np.iscomplexobj(M) else P.real)[..., side.absent]
+    return M
 
+
+def _handle_columns(st: BBoneStack, P, prev, nxt):
+    """(columns, mats): in armature space, the vector from the curve's end to each handle's point by
+    handle type (3, 1, L, g) per side, then the rotations of the handles whose roll is read (3, 3, L, g);
+    and the handles' posed matrices by side."""
+    head = P[:3, 3]
     columns, mats = [], {}
     if (x := st.start) is not None:
-        Pp = mats["start"] = own(x, prev)
+        Pp = mats["start"] = _own(x, prev, P)
         if x.kind == "RELATIVE":
             v = x.head_local - Pp[:3, 3]
         elif x.kind == "TANGENT":
@@ -170,7 +207,7 @@ def stack_state(st: BBoneStack, P, prev, nxt, prev_parent, next_parent, shared: 
             v = Pp[:3, 3] - head
         columns.append(v[:, None])
     if (x := st.end) is not None:
-        Pn = mats["end"] = own(x, nxt)
+        Pn = mats["end"] = _own(x, nxt, P)
         if x.kind == "RELATIVE":
             v = P[:3, 1] * st.length + Pn[:3, 3] - x.head_local
         elif x.kind == "TANGENT":
@@ -179,71 +216,67 @@ def stack_state(st: BBoneStack, P, prev, nxt, prev_parent, next_parent, shared: 
             v = Pn[:3, 3] + Pn[:3, 1] * x.length - head
         columns.append(v[:, None])
     columns += [mats[x.side][:3, :3] for x in st.rolled]
-    nv = len(st.sides)
-    roll = st.roll
+    return columns, mats
+
+
+def _handle_directions(st: BBoneStack, V, length, shared: bool):
+    """(H, unit): the handles' unit directions in the bone's frame (3, 2, L, g), +y at an end without a
+    handle, from their vectors ``V`` (3, sides, L, g) (a joined start's and a plain end's shortened by the
+    curve's length first, a vector shorter than 1e-5 of the bone taken as +y); ``unit`` per side."""
+    V[1] -= length * st.offset
+    d2 = (V * V).sum(0)
+    use = analytic.real_part(d2, shared) >= st.eps2
+    if st.partial:
+        use = use & st.present
+    if use.all():
+        unit = V * (analytic.rsqrt(d2, shared) * st.sign)
+    else:
+        unit = V * (analytic.rsqrt(np.where(use, d2, 1.0)) * st.sign)
+        unit = np.where(use, unit, _Y_AXIS[:, None, None, None])
+    if len(st.sides) == 2:
+        return unit, unit
+    row = np.broadcast_to(_Y_AXIS[:, None, None, None], unit.shape)
+    H = np.concatenate([unit, row] if st.sides[0].side == "start" else [row, unit], axis=1)
+    return H, unit
+
+
+def _handle_rolls(st: BBoneStack, rotations, unit, shared: bool):
+    """(2, L, g) the rolls the handles add in and out (``mat3_vec_to_roll``), from the rotations of the
+    handles whose roll is read (3, 3 rolled, L, g) in the bone's frame."""
+    index = [st.sides.index(x) for x in st.rolled]
+    N = rotations.reshape(3, len(index), 3, *rotations.shape[2:]).swapaxes(1, 2)  # (3, 3, r, L, g)
+    r = _roll_of(N, unit[:, index], shared)
+    if st.partial:
+        r = r * st.present[index]
+    if len(index) == 1:
+        pad = np.zeros_like(r)
+        r = np.concatenate([r, pad] if st.rolled[0].side == "start" else [pad, r])
+    return r
+
+
+def _handle_scales(st: BBoneStack, P, mats, prev_parent, next_parent, length):
+    """(scale_in, scale_out, ease, curve): the scales in and out, the ease and the curve offsets, times the
+    handles' own scales where ``bbone_handle_use_scale_*`` / ``bbone_handle_use_ease_*`` read them."""
     scale_in, scale_out = st.scale_in, st.scale_out
-    if not nv:
-        H = np.broadcast_to(_Y_AXIS[:, None, None, None], (3, 2, *P.shape[2:]))
-        ease, curve = st.ease, st.curve
-    else:
-        Y = _mm(imat, np.concatenate(columns, axis=1))  # (3, nv + 3 rolled, L, g)
-        V = Y[:, :nv]
-        V[1] -= length * st.offset
-        d2 = (V * V).sum(0)
-        use = analytic.real_part(d2, shared) >= st.eps2
-        if st.partial:
-            use = use & st.present
-        if use.all():
-            unit = V * (analytic.rsqrt(d2, shared) * st.sign)
+    factors = [1.0, 1.0]  # ease and curve factors of the handles' own scales
+    for x in st.sides:
+        if not x.reads_scale:
+            continue
+        rest_inverse = x.rest_inverse
+        if x.has_parent:
+            parent = prev_parent if x.side == "start" else next_parent
+            rest_inverse = _mm(rest_inverse, _inv3(_own(x, parent, P)))
+        handle_scale = analytic.sqrt((lambda A: (A * A).sum(0))(_mm(rest_inverse, mats[x.side][:3, :3])))
+        scaled = x.use_scale * handle_scale + (1 - x.use_scale)
+        if x.side == "start":
+            scale_in = scale_in * scaled
         else:
-            unit = V * (analytic.rsqrt(np.where(use, d2, 1.0)) * st.sign)
-            unit = np.where(use, unit, _Y_AXIS[:, None, None, None])
-        if nv == 2:
-            H = unit
-        else:
-            row = np.broadcast_to(_Y_AXIS[:, None, None, None], unit.shape)
-            H = np.concatenate([unit, row] if st.sides[0].side == "start" else [row, unit], axis=1)
-        if st.rolled:
-            index = [st.sides.index(x) for x in st.rolled]
-            N = Y[:, nv:].reshape(3, len(index), 3, *Y.shape[2:]).swapaxes(1, 2)  # (3, 3, r, L, g)
-            r = _roll_of(N, unit[:, index], shared)
-            if st.partial:
-                r = r * st.present[index]
-            if len(index) == 1:
-                pad = np.zeros_like(r)
-                r = np.concatenate([r, pad] if st.rolled[0].side == "start" else [pad, r])
-            roll = roll + r
-        factors = [1.0, 1.0]  # ease and curve factors of the handles' own scales
-        for x in st.sides:
-            if not x.reads_scale:
-                continue
-            rest_inverse = x.rest_inverse
-            if x.has_parent:
-                rest_inverse = _mm(
-                    rest_inverse, _inv3(own(x, prev_parent if x.side == "start" else next_parent))
-                )
-            handle_scale = analytic.sqrt((lambda A: (A * A).sum(0))(_mm(rest_inverse, mats[x.side][:3, :3])))
-            scaled = x.use_scale * handle_scale + (1 - x.use_scale)
-            if x.side == "start":
-                scale_in = scale_in * scaled
-            else:
-                scale_out = scale_out * scaled
-            factors[x.side == "end"] = x.use_ease * handle_scale[1] + (1 - x.use_ease)
-        if st.reads_scale:
-            E = np.stack(np.broadcast_arrays(*factors, length)[:2])
-            ease, curve = st.ease * E, st.curve * E
-        else:
-            ease, curve = st.ease, st.curve
-    # cubic_tangent_factor_circle_v3, then the handles' lengths, ease and curve offsets
-    d = (H[:, 0] * H[:, 1]).sum(0)
-    if d.real.max() <= 1 - 1e-5 and d.real.min() >= -1 + 1e-5:
-        factor = 0.5 / (1 + analytic.sqrt((1 + d) * 0.5, shared))
-    else:
-        inside = (d.real <= 1 - 1e-5) & (d.real >= -1 + 1e-5)
-        factor = 0.5 / (1 + analytic.sqrt(np.where(inside, 1 + d, 1.0) * 0.5))
-        factor = np.where(inside, factor, np.where(d.real > 1 - 1e-5, 0.25, 0.5))
-    H = H * (ease * (factor * length * (1 / 0.75))) + curve * sc[:, None]
-    return H, length, roll, sc, scale_in, scale_out
+            scale_out = scale_out * scaled
+        factors[x.side == "end"] = x.use_ease * handle_scale[1] + (1 - x.use_ease)
+    if not st.reads_scale:
+        return scale_in, scale_out, st.ease, st.curve
+    E = np.stack(np.broadcast_arrays(*factors, length)[:2])
+    return scale_in, scale_out, st.ease * E, st.curve * E
 
 
 def _roll_of(N, h, shared: bool = False):
