@@ -88,6 +88,16 @@ class BBoneStack:
         The bones, in the order of the stack axis ``g`` of :func:`~solver.rig.bbone.stack_deform_matrices`.
     segments : int
         Their ``bbone_segments``.
+    start, end : Side or None
+        The handles at each end (None where no bone has one); ``sides`` those present, ``rolled`` those
+        whose roll the curve reads.
+
+    The other attributes are the rest pose's constants the stacked curve reads (:mod:`.stacked`,
+    :mod:`.jacobian`, :mod:`.deform`), arrays over the stack axis last: ``length``, ``eps2`` (the squared
+    handle length below which a handle points along +y), ``present``, ``partial``, ``offset``, ``sign``
+    (per side), ``ease``, ``roll``, ``curve``, ``scale_in``, ``scale_out``, ``blend``, ``fractions``,
+    ``scale_xz``, ``reads_scale``, ``entries`` (the pose entries the curve reads), ``unbend`` and its
+    layouts ``unbend_t``, ``unbend_rows``; ``inverse_rest`` for plain bones.
     """
 
     def __init__(self, bbones, keys):
