@@ -23,7 +23,8 @@ from .bones import Bone
 from .constraints import DEFAULTS, Constraint, Target
 from .control_rig import ControlKinematics, ControlRig
 from .controls import Armature, Blocker, DriverInput, Plan, PoseBone
-from .kinematics import Kinematics, Rig, clipped, into_limits
+from .dofs import clipped, into_limits
+from .kinematics import Kinematics, Rig
 from .mirror import PoseChannel, mirror_pose
 from .protocol import PosedRig, RigLike
 from .skinning import SkinnedMesh, normalize_vertex_groups

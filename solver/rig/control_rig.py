@@ -27,7 +27,7 @@ from ..errors import SolverError
 from ..rotations import EULER_ORDERS, euler_to_matrix, matrix_to_euler
 from . import analytic, bbone, bones, constraints, spaces
 from .controls import Plan, handles
-from .kinematics import clipped
+from .dofs import EulerDofs
 
 #: A location column of the root control shorter than this (times the hand's size) does not move it.
 MIN_LOCATION_EFFECT = 1e-9
@@ -67,7 +67,7 @@ class ControlKinematics:
         return np.einsum("vs,vsid->vid", weights, moved)
 
 
-class ControlRig:
+class ControlRig(EulerDofs):
     """A production rig's hand as the solver's rig: controls in, deform-bone skinning matrices out.
 
     Parameters
@@ -96,15 +96,7 @@ class ControlRig:
         self.deform_bones = plan.deform
         root_name = plan.root if plan.root is not None else plan.hand_root
         self.names: tuple[str, ...] = (root_name, *plan.controls)
-        nb = len(self.names)
-        nd = 6 + 3 * (nb - 1)
-        self.dof_bone = np.concatenate([[0] * 6, np.repeat(np.arange(1, nb), 3)]).astype(np.int64)
-        self.is_rotation = np.arange(nd) >= 3
-        self.dof_component = np.concatenate([[0, 1, 2], np.tile([0, 1, 2], nb)])
-        self.dof_names = tuple(
-            f"{self.names[b]}.{'rotation' if r else 'location'}.{'xyz'[c]}"
-            for b, r, c in zip(self.dof_bone, self.is_rotation, self.dof_component, strict=True)
-        )
+        self._lay_out_dofs()
         self.parents = self._control_parents()
         self._root_frame()
         self.orders = self._orders()
@@ -299,22 +291,6 @@ class ControlRig:
 
     # ------------------------------------------------------------------ the rig interface
 
-    @property
-    def n_bones(self) -> int:
-        return len(self.names)
-
-    @property
-    def n_dofs(self) -> int:
-        return 6 + 3 * (self.n_bones - 1)
-
-    @property
-    def rest(self) -> np.ndarray:
-        """(d,) the prior's pose: the root where it is, every control at rest."""
-        return np.zeros(self.n_dofs)
-
-    def rotation_dof(self, bone: int, component: int) -> int:
-        return 3 + 3 * int(bone) + int(component)
-
     def bone_index(self, name: str) -> int:
         try:
             return self.names.index(name)
@@ -331,11 +307,6 @@ class ControlRig:
         if bad.size:
             raise SolverError(f"{what} is not finite at DOFs {', '.join(self.dof_names[i] for i in bad[:5])}")
         return t
-
-    def clip(self, theta) -> np.ndarray:
-        """θ (d,), or poses (F, d), within the limits: rotations a whole turn out are wrapped back (the
-        same pose), the rest clipped (:func:`solver.rig.clipped`, as :meth:`solver.Rig.clip`)."""
-        return clipped(self, theta)
 
     def kinematics(self, theta, derivatives: bool = True, dofs=None) -> ControlKinematics:
         """Skinning matrices at pose θ (d,) and, unless ``derivatives`` is False, their derivatives with

@@ -37,7 +37,7 @@ from geodesics.arrays import readonly
 
 from ..errors import SolverError, describe_ids
 from ..rotations import EULER_ORDERS, axis_rotation, matrix_to_euler, order_axes
-from .protocol import RigLike
+from .dofs import EulerDofs
 
 #: Rest rotations must be orthonormal to this tolerance.
 ORTHONORMAL_TOLERANCE = 1e-6
@@ -52,35 +52,6 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
     out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
     return out
-
-
-def into_limits(theta, is_rotation, lower, upper) -> np.ndarray:
-    """θ (..., d) brought within the DOF limits [lower, upper] (d,): a rotation (``is_rotation`` (d,) bool)
-    outside them moves by whole turns when that lands it inside (the same pose), then every value is
-    clipped.
-
-    Clipping alone would give another pose to an angle a turn away: an unwrapped root angle of
-    8.06 rad clipped to the root's 2π limit is 102° off, wrapped back it is exact.
-    """
-    T = np.array(theta, dtype=np.float64)
-    rot = np.asarray(is_rotation, dtype=bool)
-    lo, hi = np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)
-    V, lo_r, hi_r = T[..., rot], lo[rot], hi[rot]
-    turns = np.ceil((lo_r - V) / (2 * np.pi)).clip(min=0) - np.ceil((V - hi_r) / (2 * np.pi)).clip(min=0)
-    moved = V + 2 * np.pi * turns
-    T[..., rot] = np.where((moved >= lo_r) & (moved <= hi_r), moved, V)
-    return np.clip(T, lo, hi)
-
-
-def clipped(rig: RigLike, theta) -> np.ndarray:
-    """θ (d,), or poses (F, d), of ``rig`` within its limits (:func:`into_limits`); raises SolverError for
-    poses of another shape or not finite."""
-    T = np.asarray(theta, dtype=np.float64)
-    if T.ndim == 2:
-        if T.shape[1] != rig.n_dofs or not np.isfinite(T).all():
-            raise SolverError(f"poses must be finite with shape (F, {rig.n_dofs}), got {T.shape}")
-        return into_limits(T, rig.is_rotation, rig.lower, rig.upper)
-    return into_limits(rig.check_theta(T), rig.is_rotation, rig.lower, rig.upper)
 
 
 @dataclass(frozen=True)
@@ -147,7 +118,7 @@ class Kinematics:
         return J
 
 
-class Rig:
+class Rig(EulerDofs):
     """A bone tree with rest matrices, DOF limits and locks.
 
     Parameters
@@ -197,14 +168,8 @@ class Rig:
         self.lengths = readonly(self._checked_lengths(lengths))
         self.rotation_modes: tuple[str, ...] = self._checked_modes(rotation_modes)
 
-        nd = 6 + 3 * (nb - 1)
-        self.dof_bone = readonly(np.concatenate([[0, 0, 0, 0, 0, 0], np.repeat(np.arange(1, nb), 3)]))
-        self.is_rotation = readonly(np.arange(nd) >= 3)
-        self.dof_component = readonly(np.concatenate([[0, 1, 2], np.tile([0, 1, 2], nb)]))
-        self.dof_names: tuple[str, ...] = tuple(
-            f"{self.names[b]}.{'rotation' if rot else 'location'}.{'xyz'[c]}"
-            for b, rot, c in zip(self.dof_bone, self.is_rotation, self.dof_component, strict=True)
-        )
+        self._lay_out_dofs()
+        nd = self.n_dofs
         lo, hi = self._checked_limits(lower, upper)
         self.lower = readonly(lo)
         self.upper = readonly(hi)
@@ -398,14 +363,6 @@ class Rig:
     # ------------------------------------------------------------------ sizes and lookups
 
     @property
-    def n_bones(self) -> int:
-        return len(self.names)
-
-    @property
-    def n_dofs(self) -> int:
-        return 6 + 3 * (self.n_bones - 1)
-
-    @property
     def deform_bones(self) -> tuple[str, ...]:
         """The bones a skin's weights name, one column each: every bone of the rig."""
         return self.names
@@ -419,11 +376,6 @@ class Rig:
         """(n, b) weights per skinning matrix: a plain rig's bones each have one, so ``weights`` (n, b)
         themselves, as a CSR matrix (``rest_vertices`` (n, 3) are not needed)."""
         return sparse.csr_matrix(weights)
-
-    @property
-    def rest(self) -> np.ndarray:
-        """(d,) the rest pose: all zeros (identity ``matrix_basis`` for every bone)."""
-        return np.zeros(self.n_dofs)
 
     @property
     def heads(self) -> np.ndarray:
@@ -449,10 +401,6 @@ class Rig:
             raise SolverError(f"bone index {b} is out of range 0..{self.n_bones - 1}")
         return np.flatnonzero(self.dof_bone == b)
 
-    def rotation_dof(self, bone: int, component: int) -> int:
-        """Index of the DOF rotating ``bone`` about its local axis ``component`` (0 = x, 1 = y, 2 = z)."""
-        return int(self._rot_dof[bone, component])
-
     @cached_property
     def subtree(self) -> np.ndarray:
         """(b, b) bool: ``subtree[i, j]`` when bone i is bone j or one of its descendants."""
@@ -460,11 +408,6 @@ class Rig:
         for b in range(1, self.n_bones):
             D[b] |= D[self.parents[b]]
         return readonly(D)
-
-    def clip(self, theta) -> np.ndarray:
-        """θ (d,), or poses (F, d), within the limits: rotations a whole turn out are wrapped back (the
-        same pose), the rest clipped (:func:`into_limits`)."""
-        return clipped(self, theta)
 
     def check_theta(self, theta, what: str = "theta") -> np.ndarray:
         """(d,) float64 copy of θ; raises SolverError unless it has one finite value per DOF."""
