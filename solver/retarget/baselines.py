@@ -77,8 +77,7 @@ from .frames import (
     FrameResult,
     FrameTask,
     HandSpec,
-    _built_hand,
-    _hand,
+    as_hand,
     solve_frame,
     solve_frames,
 )
@@ -222,7 +221,7 @@ def keypoint_tasks(
     empty = SurfacePoints(np.empty(0, np.int64), np.empty((0, 3)))
     out = []
     for task, root in zip(tasks, R, strict=True):
-        rig = _hand(task.hand).rig
+        rig = as_hand(task.hand).rig
         seed = rig.rest.copy()
         seed[:6] = root
         out.append(
@@ -561,7 +560,7 @@ def _source_length(annotation, params: KeyvectorParams, target) -> tuple[float, 
             "the keyvector scaling η needs the source and target hand lengths: give "
             "KeyvectorParams(scaling=...) for hands that are not procedural"
         )
-    source = _built_hand(annotation.source.kind, float(annotation.source.scale))
+    source = HandSpec(annotation.source.kind, float(annotation.source.scale)).build()
     return float(target.length) / float(source.length), L
 
 
@@ -611,7 +610,7 @@ def keyvector_tasks(
     R = _roots(roots, tasks)
     out = []
     for task, root in zip(tasks, R, strict=True):
-        hand = _hand(task.hand)
+        hand = as_hand(task.hand)
         scaling, L = _source_length(annotation, params, hand)
         source = M @ np.asarray(task.marker_targets)[rows]
         reference, weights, classes = dexpilot_targets(source, layout, params, scaling, L)
@@ -643,7 +642,7 @@ def keyvector_tasks(
 def keyvector_problem(task: KeyvectorTask) -> KeyvectorIK:
     """The :class:`KeyvectorIK` of a task."""
     return KeyvectorIK(
-        _hand(task.hand),
+        as_hand(task.hand),
         task.points,
         task.matrix,
         task.reference,
@@ -770,7 +769,7 @@ def frame_distances(
     contact = np.full(len(tasks), np.nan)
     marker = np.full(len(tasks), np.nan)
     for i, (task, theta) in enumerate(zip(tasks, T, strict=True)):
-        hand = _hand(task.hand)
+        hand = as_hand(task.hand)
         if len(task.contact_points):
             p, _ = hand.posed_points(theta, task.contact_points)
             contact[i] = np.linalg.norm(p - task.contact_targets, axis=1).mean()

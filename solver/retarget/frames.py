@@ -61,6 +61,7 @@ from geodesics.rigid import rigid_fit
 
 from ..control_rig import ControlRig
 from ..errors import SolverError
+from ..hands import hand_from_kind
 from ..ik import ContactIK, Markers, Weights
 from ..rotations import matrix_to_euler
 from ..sdf import Box
@@ -119,7 +120,8 @@ class RetargetWeights:
 @dataclass(frozen=True)
 class HandSpec:
     """A procedural target hand by name (:func:`solver.hands.make_hand`'s kinds, or ``"<kind>-left"`` for
-    its mirror image): cheap to send to workers, rebuilt once per process."""
+    its mirror image: :func:`solver.hands.hand_from_kind`): cheap to send to workers, rebuilt once per
+    process."""
 
     kind: str
     scale: float = 1.0
@@ -130,12 +132,12 @@ class HandSpec:
 
 @lru_cache(maxsize=8)
 def _built_hand(kind: str, scale: float):
-    from .synthetic import source_hand  # knows the mirrored left hands ("human-left") too
-
-    return source_hand(kind, scale)
+    return hand_from_kind(kind, scale)
 
 
-def _hand(hand) -> SkinnedMesh:
+def as_hand(hand) -> SkinnedMesh:
+    """The :class:`~solver.SkinnedMesh` a task's ``hand`` stands for: a :class:`HandSpec` built (once per
+    process), a SkinnedMesh as it is."""
     if isinstance(hand, HandSpec):
         return hand.build()
     if isinstance(hand, SkinnedMesh):
@@ -355,7 +357,7 @@ def _near_table(hand, table: Box | None, theta) -> bool:
 def solve_frame(task: FrameTask) -> FrameResult:
     """Solve one frame's pose (Eq. 3): picklable, independent of every other frame."""
     start = time.perf_counter()
-    hand = _hand(task.hand)
+    hand = as_hand(task.hand)
     rig = hand.rig
     seed = rig.check_theta(task.seed, "seed")
     task = whole = replace(task, seed=seed)
@@ -474,7 +476,7 @@ def build_tasks(
     """
     from .transfer import transfer_motion
 
-    target = _hand(hand)
+    target = as_hand(hand)
     weights = weights or RetargetWeights()
     if hand_contacts is None and motion.hand_contacts is not None:
         moved = transfer_motion(motion, annotation, target.mesh)
