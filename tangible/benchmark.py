@@ -19,12 +19,13 @@ from geodesics.benchmark import Row, _median_time
 from . import rotations as rot
 from .creatures import creature
 from .device import SPLITTERS, DeviceTree, Piece
+from .motions import RandomMotion
 from .posespace import PoseSpace
 from .protocol import CYCLE, MIN_ID, DataRecord, encode_record
 from .puppet import JointBinding, Puppet
 from .reader import SerialReader
 from .reduction import Kit, reduce
-from .simulator import Faults, RandomMotion, Simulator
+from .simulator import Faults, Simulator
 from .topology import DeviceTopology
 
 __all__ = ["link_device", "run", "run_reduction_curve"]
