@@ -77,12 +77,25 @@ def _random_points(mesh, k, rng) -> SurfacePoints:
 def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | None = None) -> list[Row]:
     """Run the geodesic benchmarks; ``progress`` receives a line of text before each one."""
     say = progress or (lambda _msg: None)
-    rows: list[Row] = []
     mesh = torus(n_major=140, n_minor=72)  # 20,160 faces, with saddle vertices on the inner side
     rng = np.random.default_rng(0)
-    diameter = mesh.bounding_diagonal
 
     say("exp_map")
+    rows = [_exp_map_row(mesh, rng, rays, repeat)]
+    say("log_map")
+    origin = SurfacePoints.from_vertices(mesh, [int(rng.integers(mesh.n_vertices))])
+    rows += _log_map_rows(mesh, origin, rng, rays, repeat)
+    say("vector heat log map")
+    rows += _vector_heat_rows(mesh, origin, repeat)
+    say("1M faces")
+    rows += _million_faces_rows(rng, rays, repeat)
+    return rows
+
+
+def _exp_map_row(mesh, rng, rays: int, repeat: int) -> Row:
+    """``rays`` straightest geodesics a tenth of the diameter long, beside potpourri3d's tracer (looped:
+    it traces one ray a call), whose end points are checked against ours."""
+    diameter = mesh.bounding_diagonal
     origins = _random_points(mesh, rays, rng)
     z = 0.1 * diameter * np.exp(1j * rng.uniform(0, 2 * np.pi, rays))
 
@@ -108,10 +121,13 @@ def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | Non
     except ImportError:
         pass
     task = f"exp_map: {rays} rays, 10% of the diameter long"
-    rows.append(Row(task, *_beside(ours, theirs, repeat), peer_name, note))
+    return Row(task, *_beside(ours, theirs, repeat), peer_name, note)
 
-    say("log_map")
-    origin = SurfacePoints.from_vertices(mesh, [int(rng.integers(mesh.n_vertices))])
+
+def _log_map_rows(mesh, origin: SurfacePoints, rng, rays: int, repeat: int) -> list[Row]:
+    """The exact log map from ``origin`` to ``rays`` targets near it and all over the mesh, beside
+    pygeodesic's exact distances (MMP) to the vertices within the same radius."""
+    rows = []
     pool = _random_points(mesh, 40 * rays, rng)
     distance = GeodesicField(mesh, origin).query(pool).distances
     for share in (0.25, 1.0):
@@ -146,8 +162,13 @@ def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | Non
                 note,
             )
         )
+    return rows
 
-    say("vector heat log map")
+
+def _vector_heat_rows(mesh, origin: SurfacePoints, repeat: int) -> list[Row]:
+    """For contrast, potpourri3d's approximate log map at every vertex (the vector heat method) with its
+    distance error against the exact distances; no row without potpourri3d."""
+    diameter = mesh.bounding_diagonal
     try:
         import potpourri3d
 
@@ -157,7 +178,7 @@ def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | Non
         exact = GeodesicField(mesh, origin).vertex_distance
         error = np.abs(np.linalg.norm(approx, axis=1) - exact)
         peer = _median_time(lambda: heat.compute_log_map(vertex), repeat)
-        rows.append(
+        return [
             Row(
                 "for contrast: approximate log map at all vertices",
                 np.nan,
@@ -166,11 +187,14 @@ def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | Non
                 f"its distance error: median {np.median(error) / diameter:.1e}, "
                 f"max {error.max() / diameter:.1e} x diameter",
             )
-        )
+        ]
     except ImportError:
-        pass
+        return []
 
-    say("1M faces")
+
+def _million_faces_rows(rng, rays: int, repeat: int) -> list[Row]:
+    """A torus of a million faces: building and validating it (one run), then ``rays`` straightest
+    geodesics on it, with the peak memory of both."""
     tracemalloc.start()
     start = time.perf_counter()
     big = torus(n_major=1000, n_minor=500)
@@ -181,15 +205,14 @@ def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | Non
     traced = _median_time(lambda: exp_map(big, origins, z), repeat)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
-    rows.append(Row(f"1M faces: build and validate ({big.n_faces:,} faces)", built, note="one run"))
-    rows.append(
+    return [
+        Row(f"1M faces: build and validate ({big.n_faces:,} faces)", built, note="one run"),
         Row(
             f"1M faces: exp_map {rays} rays",
             traced,
             note=f"peak memory of mesh and tracing: {peak / 2**30:.2f} GiB",
-        )
-    )
-    return rows
+        ),
+    ]
 
 
 def run_contacts(repeat: int = 5, progress: Callable[[str], None] | None = None) -> list[Row]:
