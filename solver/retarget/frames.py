@@ -16,11 +16,10 @@ at the hand's vertices, and the prior to the rest pose (or a given pose) — ana
 ``u`` = the hand's size / 25, about a Maya centimetre on a life-size hand; 1 + n·m for normals; squared
 penetration depth over ``u`` for the table; squared radians for the prior), and they map one to one:
 ``Weights(d = λc λcd, n = λc λcn, m = λm, t = λt, p = λj)``. Only λj's default differs: ours is 10,
-Contact Edit's λp that ContactIK was tuned with, not 50. The paper's Γ_J is on Maya DOF values (degrees)
-and its distances are not squared, so its 50 has no exact counterpart in radians²; measured on the
-same-hand retarget of a synthetic grasp (1,500 contacts), λj = 50 biases the recovered finger joints by
-up to 10° against 3° at λj = 10 while changing nothing else (:meth:`RetargetWeights.paper` gives the
-paper's numbers for comparison).
+Contact Edit's λp (ContactIK's default), not 50. The paper's Γ_J is on Maya DOF values (degrees) and its
+distances are not squared, so its 50 has no exact counterpart in radians²; there it biases the
+recovered finger joints towards rest more than 10 does while changing nothing else
+(:meth:`RetargetWeights.paper` gives the paper's numbers for comparison).
 
 **The root pass** solves the root's six DOFs with every term of Eq. 3, but only over the markers and
 contacts on the forearm and palm: with the fingers held at rest, finger markers and contacts would drag
@@ -40,8 +39,8 @@ one contact, so one marker point stands in as a contact with zero distance and n
 terms are then exactly zero).
 
 **The table** term is left out of a frame whose hand, at the seed pose, is farther than a hand length
-from the table (it cannot reach it within one solve; evaluating the box distance at every vertex is
-about 40% of an evaluation's cost); if the solved pose nevertheless penetrates the table, the frame is
+from the table (it cannot reach it within one solve, and the box distance at every vertex is a large
+part of an evaluation's cost); if the solved pose nevertheless penetrates the table, the frame is
 solved again with the term.
 """
 
@@ -75,8 +74,8 @@ if TYPE_CHECKING:  # pragma: no cover
 STAGES = ("root", "full")
 #: Objective evaluations per solve at most.
 MAX_EVALUATIONS = 1000
-#: NLopt algorithm of the per-frame solves: L-BFGS. From a root estimate (not from rest, as in Contact
-#: Edit's single-pose benchmark) it reaches SLSQP's energy in about half the evaluations.
+#: NLopt algorithm of the per-frame solves: L-BFGS, which from a root estimate (not from rest, as in
+#: Contact Edit's single-pose benchmark) reaches SLSQP's energy in fewer evaluations.
 ALGORITHM = "lbfgs"
 #: Relative energy change at which a frame's solve stops.
 FTOL_REL = 1e-7

@@ -27,8 +27,8 @@ start poses (the caller decides how: in worker processes, on a Dask cluster). Th
    a row fail to bring it below ``1 - min_progress`` of the lowest yet, the rest are accelerations
    that interpolating and re-solving cannot remove: a motion faster than the threshold (a whole
    grasp-and-lift in half a second), or a solver that falls back into the same local minimum. The
-   paper's cap then costs 20 full re-solves for nothing (on a 60-frame motion, 200 s of a 230 s
-   retarget); a spike that shrinks with every round keeps the rounds going.
+   paper's cap then costs 20 full re-solves for nothing; a spike that shrinks with every round keeps
+   the rounds going.
 4. What is still flagged at the end is **reported and masked**: ``valid`` is False there, and the
    spline fit (:func:`solver.retarget.spline.fit_bspline`) ignores those samples, as the paper's fit does.
 
