@@ -56,7 +56,9 @@ def _median_times(fns: list[Callable[[], object]], repeat: int) -> list[float]:
     return [float(np.median(spent)) for spent in times]
 
 
-def _median_time(fn: Callable[[], object], repeat: int) -> float:
+def median_time(fn: Callable[[], object], repeat: int) -> float:
+    """Median seconds of ``fn`` over ``repeat`` runs after :data:`WARMUP` untimed ones: the timing every
+    benchmark of the libraries (geodesics, solver, tangible) uses."""
     return _median_times([fn], repeat)[0]
 
 
@@ -65,7 +67,7 @@ def _beside(
 ) -> tuple[float, float | None]:
     """Median seconds of ``ours`` and of ``peer`` (None where there is no peer), timed alternately."""
     if peer is None:
-        return _median_time(ours, repeat), None
+        return median_time(ours, repeat), None
     ours_time, peer_time = _median_times([ours, peer], repeat)
     return ours_time, peer_time
 
@@ -177,7 +179,7 @@ def _vector_heat_rows(mesh, origin: SurfacePoints, repeat: int) -> list[Row]:
         approx = heat.compute_log_map(vertex)
         exact = GeodesicField(mesh, origin).vertex_distance
         error = np.abs(np.linalg.norm(approx, axis=1) - exact)
-        peer = _median_time(lambda: heat.compute_log_map(vertex), repeat)
+        peer = median_time(lambda: heat.compute_log_map(vertex), repeat)
         return [
             Row(
                 "for contrast: approximate log map at all vertices",
@@ -202,7 +204,7 @@ def _million_faces_rows(rng, rays: int, repeat: int) -> list[Row]:
     origins = _random_points(big, rays, rng)
     z = 0.1 * big.bounding_diagonal * np.exp(1j * rng.uniform(0, 2 * np.pi, rays))
     exp_map(big, origins, z)
-    traced = _median_time(lambda: exp_map(big, origins, z), repeat)
+    traced = median_time(lambda: exp_map(big, origins, z), repeat)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     return [
@@ -235,11 +237,11 @@ def run_contacts(repeat: int = 5, progress: Callable[[str], None] | None = None)
 
     say("parameterize")
     axis = farthest_pair_axis(mesh, points)
-    ours = _median_time(lambda: ContactPatch(mesh, points, axis), repeat)
+    ours = median_time(lambda: ContactPatch(mesh, points, axis), repeat)
     rows.append(Row(f"parameterize a {len(points)}-point patch ({len(axis)} axis points, exact)", ours))
-    ready = _median_time(lambda: ContactPatch(mesh, points, farthest_pair_axis(mesh, points)), repeat)
+    ready = median_time(lambda: ContactPatch(mesh, points, farthest_pair_axis(mesh, points)), repeat)
     rows.append(Row("paint -> patch ready (default axis + parameterization)", ready))
-    medial = _median_time(lambda: ContactPatch(mesh, points, medial_axis(mesh, points)), repeat)
+    medial = median_time(lambda: ContactPatch(mesh, points, medial_axis(mesh, points)), repeat)
     rows.append(Row(f"paint -> patch ready (medial axis, {len(medial_axis(mesh, points))} points)", medial))
     patch = ContactPatch(mesh, points, axis)
 
@@ -249,18 +251,18 @@ def run_contacts(repeat: int = 5, progress: Callable[[str], None] | None = None)
     rows.append(
         Row(
             "translate by a mouse step (two edge lengths)",
-            _median_time(lambda: patch.translate(drag), repeat),
+            median_time(lambda: patch.translate(drag), repeat),
         )
     )
-    rows.append(Row("rotate", _median_time(lambda: patch.rotate(0.1), repeat)))
+    rows.append(Row("rotate", median_time(lambda: patch.rotate(0.1), repeat)))
     rows.append(
-        Row("bend at the middle axis point", _median_time(lambda: patch.bend(len(axis) // 2, 0.2), repeat))
+        Row("bend at the middle axis point", median_time(lambda: patch.bend(len(axis) // 2, 0.2), repeat))
     )
     sphere = icosphere(5, radius=1.5)
     start = SurfacePoints.nearest(sphere, [[0.0, 0.0, 1.5]])
     rows.append(Row(
         f"transfer onto another 20k-face mesh (icosphere, {sphere.n_faces} faces)",
-        _median_time(lambda: patch.transfer(sphere, start, 1.0), repeat),
+        median_time(lambda: patch.transfer(sphere, start, 1.0), repeat),
     ))  # fmt: skip
 
     say("atlas")
@@ -286,7 +288,7 @@ def run_contacts(repeat: int = 5, progress: Callable[[str], None] | None = None)
             tangent_from_3d(target, where, tangent_to_3d(mesh, curve.start, curve.direction))[0],
         )
     laid = atlas.lay_out(target, placements)
-    ours = _median_time(
+    ours = median_time(
         lambda: atlas.transfer(contacts, laid, radial_scale={"curve 0": 1.2}), max(1, repeat // 2)
     )
     rows.append(Row(f"atlas transfer of {len(contacts):,} contacts (3 curves, onto a scan-like torus)", ours))
