@@ -383,7 +383,7 @@ def _retarget(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from solver import SolverError
-    from solver.retarget import annotate, annotations, pipeline, synthetic
+    from solver.retarget import annotate, annotations, pipeline
     from solver.retarget.frames import HandSpec, RetargetWeights
     from solver.retarget.motion import Motion
 
@@ -398,7 +398,7 @@ def _retarget(args: argparse.Namespace) -> int:
             "the motion's source hand is not a procedural one; give its annotation with --annotation"
         )
     else:
-        source = synthetic.source_hand(motion.source_kind, motion.source_scale)
+        source = HandSpec(motion.source_kind, motion.source_scale).build()
         annotation = annotate.default_annotation(source, target.build())
     weights = RetargetWeights(**dict(args.weight or ()))
     options = pipeline.RetargetOptions(

@@ -56,7 +56,9 @@ def _median_times(fns: list[Callable[[], object]], repeat: int) -> list[float]:
     return [float(np.median(spent)) for spent in times]
 
 
-def _median_time(fn: Callable[[], object], repeat: int) -> float:
+def median_time(fn: Callable[[], object], repeat: int) -> float:
+    """Median seconds of ``fn`` over ``repeat`` runs after :data:`WARMUP` untimed ones: the timing every
+    benchmark of the libraries (geodesics, solver, tangible) uses."""
     return _median_times([fn], repeat)[0]
 
 
@@ -65,7 +67,7 @@ def _beside(
 ) -> tuple[float, float | None]:
     """Median seconds of ``ours`` and of ``peer`` (None where there is no peer), timed alternately."""
     if peer is None:
-        return _median_time(ours, repeat), None
+        return median_time(ours, repeat), None
     ours_time, peer_time = _median_times([ours, peer], repeat)
     return ours_time, peer_time
 
@@ -77,12 +79,25 @@ def _random_points(mesh, k, rng) -> SurfacePoints:
 def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | None = None) -> list[Row]:
     """Run the geodesic benchmarks; ``progress`` receives a line of text before each one."""
     say = progress or (lambda _msg: None)
-    rows: list[Row] = []
     mesh = torus(n_major=140, n_minor=72)  # 20,160 faces, with saddle vertices on the inner side
     rng = np.random.default_rng(0)
-    diameter = mesh.bounding_diagonal
 
     say("exp_map")
+    rows = [_exp_map_row(mesh, rng, rays, repeat)]
+    say("log_map")
+    origin = SurfacePoints.from_vertices(mesh, [int(rng.integers(mesh.n_vertices))])
+    rows += _log_map_rows(mesh, origin, rng, rays, repeat)
+    say("vector heat log map")
+    rows += _vector_heat_rows(mesh, origin, repeat)
+    say("1M faces")
+    rows += _million_faces_rows(rng, rays, repeat)
+    return rows
+
+
+def _exp_map_row(mesh, rng, rays: int, repeat: int) -> Row:
+    """``rays`` straightest geodesics a tenth of the diameter long, beside potpourri3d's tracer (looped:
+    it traces one ray a call), whose end points are checked against ours."""
+    diameter = mesh.bounding_diagonal
     origins = _random_points(mesh, rays, rng)
     z = 0.1 * diameter * np.exp(1j * rng.uniform(0, 2 * np.pi, rays))
 
@@ -108,10 +123,13 @@ def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | Non
     except ImportError:
         pass
     task = f"exp_map: {rays} rays, 10% of the diameter long"
-    rows.append(Row(task, *_beside(ours, theirs, repeat), peer_name, note))
+    return Row(task, *_beside(ours, theirs, repeat), peer_name, note)
 
-    say("log_map")
-    origin = SurfacePoints.from_vertices(mesh, [int(rng.integers(mesh.n_vertices))])
+
+def _log_map_rows(mesh, origin: SurfacePoints, rng, rays: int, repeat: int) -> list[Row]:
+    """The exact log map from ``origin`` to ``rays`` targets near it and all over the mesh, beside
+    pygeodesic's exact distances (MMP) to the vertices within the same radius."""
+    rows = []
     pool = _random_points(mesh, 40 * rays, rng)
     distance = GeodesicField(mesh, origin).query(pool).distances
     for share in (0.25, 1.0):
@@ -146,8 +164,13 @@ def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | Non
                 note,
             )
         )
+    return rows
 
-    say("vector heat log map")
+
+def _vector_heat_rows(mesh, origin: SurfacePoints, repeat: int) -> list[Row]:
+    """For contrast, potpourri3d's approximate log map at every vertex (the vector heat method) with its
+    distance error against the exact distances; no row without potpourri3d."""
+    diameter = mesh.bounding_diagonal
     try:
         import potpourri3d
 
@@ -156,8 +179,8 @@ def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | Non
         approx = heat.compute_log_map(vertex)
         exact = GeodesicField(mesh, origin).vertex_distance
         error = np.abs(np.linalg.norm(approx, axis=1) - exact)
-        peer = _median_time(lambda: heat.compute_log_map(vertex), repeat)
-        rows.append(
+        peer = median_time(lambda: heat.compute_log_map(vertex), repeat)
+        return [
             Row(
                 "for contrast: approximate log map at all vertices",
                 np.nan,
@@ -166,11 +189,14 @@ def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | Non
                 f"its distance error: median {np.median(error) / diameter:.1e}, "
                 f"max {error.max() / diameter:.1e} x diameter",
             )
-        )
+        ]
     except ImportError:
-        pass
+        return []
 
-    say("1M faces")
+
+def _million_faces_rows(rng, rays: int, repeat: int) -> list[Row]:
+    """A torus of a million faces: building and validating it (one run), then ``rays`` straightest
+    geodesics on it, with the peak memory of both."""
     tracemalloc.start()
     start = time.perf_counter()
     big = torus(n_major=1000, n_minor=500)
@@ -178,18 +204,17 @@ def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | Non
     origins = _random_points(big, rays, rng)
     z = 0.1 * big.bounding_diagonal * np.exp(1j * rng.uniform(0, 2 * np.pi, rays))
     exp_map(big, origins, z)
-    traced = _median_time(lambda: exp_map(big, origins, z), repeat)
+    traced = median_time(lambda: exp_map(big, origins, z), repeat)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
-    rows.append(Row(f"1M faces: build and validate ({big.n_faces:,} faces)", built, note="one run"))
-    rows.append(
+    return [
+        Row(f"1M faces: build and validate ({big.n_faces:,} faces)", built, note="one run"),
         Row(
             f"1M faces: exp_map {rays} rays",
             traced,
             note=f"peak memory of mesh and tracing: {peak / 2**30:.2f} GiB",
-        )
-    )
-    return rows
+        ),
+    ]
 
 
 def run_contacts(repeat: int = 5, progress: Callable[[str], None] | None = None) -> list[Row]:
@@ -212,11 +237,11 @@ def run_contacts(repeat: int = 5, progress: Callable[[str], None] | None = None)
 
     say("parameterize")
     axis = farthest_pair_axis(mesh, points)
-    ours = _median_time(lambda: ContactPatch(mesh, points, axis), repeat)
+    ours = median_time(lambda: ContactPatch(mesh, points, axis), repeat)
     rows.append(Row(f"parameterize a {len(points)}-point patch ({len(axis)} axis points, exact)", ours))
-    ready = _median_time(lambda: ContactPatch(mesh, points, farthest_pair_axis(mesh, points)), repeat)
+    ready = median_time(lambda: ContactPatch(mesh, points, farthest_pair_axis(mesh, points)), repeat)
     rows.append(Row("paint -> patch ready (default axis + parameterization)", ready))
-    medial = _median_time(lambda: ContactPatch(mesh, points, medial_axis(mesh, points)), repeat)
+    medial = median_time(lambda: ContactPatch(mesh, points, medial_axis(mesh, points)), repeat)
     rows.append(Row(f"paint -> patch ready (medial axis, {len(medial_axis(mesh, points))} points)", medial))
     patch = ContactPatch(mesh, points, axis)
 
@@ -226,18 +251,18 @@ def run_contacts(repeat: int = 5, progress: Callable[[str], None] | None = None)
     rows.append(
         Row(
             "translate by a mouse step (two edge lengths)",
-            _median_time(lambda: patch.translate(drag), repeat),
+            median_time(lambda: patch.translate(drag), repeat),
         )
     )
-    rows.append(Row("rotate", _median_time(lambda: patch.rotate(0.1), repeat)))
+    rows.append(Row("rotate", median_time(lambda: patch.rotate(0.1), repeat)))
     rows.append(
-        Row("bend at the middle axis point", _median_time(lambda: patch.bend(len(axis) // 2, 0.2), repeat))
+        Row("bend at the middle axis point", median_time(lambda: patch.bend(len(axis) // 2, 0.2), repeat))
     )
     sphere = icosphere(5, radius=1.5)
     start = SurfacePoints.nearest(sphere, [[0.0, 0.0, 1.5]])
     rows.append(Row(
         f"transfer onto another 20k-face mesh (icosphere, {sphere.n_faces} faces)",
-        _median_time(lambda: patch.transfer(sphere, start, 1.0), repeat),
+        median_time(lambda: patch.transfer(sphere, start, 1.0), repeat),
     ))  # fmt: skip
 
     say("atlas")
@@ -263,7 +288,7 @@ def run_contacts(repeat: int = 5, progress: Callable[[str], None] | None = None)
             tangent_from_3d(target, where, tangent_to_3d(mesh, curve.start, curve.direction))[0],
         )
     laid = atlas.lay_out(target, placements)
-    ours = _median_time(
+    ours = median_time(
         lambda: atlas.transfer(contacts, laid, radial_scale={"curve 0": 1.2}), max(1, repeat // 2)
     )
     rows.append(Row(f"atlas transfer of {len(contacts):,} contacts (3 curves, onto a scan-like torus)", ours))

@@ -162,8 +162,8 @@ def closest_on_triangles(P: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, ...]
 
 
 def _lengths(V: np.ndarray) -> np.ndarray:
-    """(k,) Euclidean lengths of the rows of V (k, 3): the bits of ``np.linalg.norm(V, axis=1)``, whose
-    reduction over rows of three costs twice as much."""
+    """(k,) Euclidean lengths of the rows of V (k, 3): the bits of ``np.linalg.norm(V, axis=1)`` without
+    its general reduction over rows of three."""
     sq = V * V
     return np.sqrt(sq[:, 0] + sq[:, 1] + sq[:, 2])
 

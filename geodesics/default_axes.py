@@ -79,9 +79,9 @@ def _exactly_farthest(
 def _graph_sweeps(mesh: TriMesh, points: SurfacePoints):
     """``sweep(sources, limit=inf)``: the (s, k) shortest-path lengths from the patch points ``sources``
     (s,) to all k patch points over the mesh edges plus straight lines from each patch point to its
-    face's corners: an upper bound on the geodesic distance (8 % over it in the median on a jittered
-    grid, whatever the resolution: the error is the edges' zigzag). One C Dijkstra a source, which
-    goes no farther than ``limit`` (inf beyond it)."""
+    face's corners: an upper bound on the geodesic distance, whose relative error does not shrink with
+    the resolution (it is the edges' zigzag). One C Dijkstra a source, which goes no farther than
+    ``limit`` (inf beyond it)."""
     n, k = mesh.n_vertices, len(points)
     corners = mesh.faces[points.faces]  # (k, 3)
     spokes = np.linalg.norm(mesh.vertices[corners] - points.positions(mesh)[:, None], axis=2)

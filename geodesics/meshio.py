@@ -34,8 +34,7 @@ coordinates or normals; its polygon triangulation reorders faces (OFF, PLY and a
 file's triangles first, then the first halves of all quads, then their second halves) and splits quads
 otherwise than Blender; it cannot read binary PLY whose polygons differ in size (Blender's PLY export);
 and its writers round coordinates (OBJ to 8 decimals, OFF to 10, PLY to float32). trimesh is imported only to
-read or write STL and glTF: importing it takes about half a second, and the Blender extension does not
-ship it.
+read or write STL and glTF: it is slow to import, and the Blender extension does not ship it.
 
 trimesh's geometric queries are the independent oracle of ``tests/test_trimesh_oracle.py`` rather than
 replacements for ours. :class:`solver.sdf.MeshSDF` and :meth:`SurfacePoints.nearest
@@ -255,7 +254,7 @@ def _text(data: bytes, what: str) -> str:
 
 
 def _import_trimesh(kind: str):
-    """trimesh, imported on first use (it takes about half a second, and Blender's extension lacks it)."""
+    """trimesh, imported on first use (it is slow to import, and Blender's extension lacks it)."""
     try:
         import trimesh
     except ImportError:

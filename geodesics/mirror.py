@@ -653,41 +653,14 @@ def mirror_contacts(
     base = ContactSet(target) if into is None else into
     if base.mesh is not target:
         raise ContactError("'into' lies on another mesh than the mirror map's target")
-    names = list(contacts.patches) if names is None else list(dict.fromkeys(names))
-    for name in names:
-        contacts[name]  # a clear error for an unknown name
-    new = {name: rename(name) for name in names}
-    if len(set(new.values())) != len(new):
-        raise ContactError(f"flipping {', '.join(names)} gives repeated names {', '.join(new.values())}")
-    taken = [n for n in new.values() if n in base]
-    if taken and not overwrite:
-        raise ContactError(
-            f"the target already has patches named {', '.join(taken)}; pass overwrite to replace them"
-        )
+    new = _mirrored_names(contacts, base, names, rename, overwrite)
+    names = list(new)
 
     patches = dict(base.patches)
     for name in names:
-        patch = contacts[name]
-        axis = patch.axis
-        tangents = mirror.map_directions(axis.points, axis.tangents)
-        mirrored_axis = Axis.embedded(
-            target, mirror.map_points(axis.points), axis.lengths, np.conj(axis.turning), tangents
-        )
-        patches[new[name]] = ContactPatch(target, mirror.map_points(patch.points), mirrored_axis)
-
-    replaced = set(new.values())
-    kept = {c: link for c, link in base.links.items() if c not in replaced}
-    links = {c: link for c, link in kept.items() if link.parent not in replaced}
-    relink = [(c, link.parent) for c, link in kept.items() if link.parent in replaced]
-    for name in names:
-        link = contacts.links.get(name)
-        if link is None:
-            continue
-        if link.parent in new:
-            links[new[name]] = Link(new[link.parent], link.length, np.conj(link.leave), np.conj(link.arrive))
-        elif rename(link.parent) in patches:
-            relink.append((new[name], rename(link.parent)))
-    paired = {k: v for k, v in base.pairs.items() if k not in replaced}
+        patches[new[name]] = _mirrored_patch(contacts[name], mirror)
+    links, relink = _mirrored_links(contacts, base, new, rename, patches)
+    paired = {k: v for k, v in base.pairs.items() if k not in new.values()}
     if pairs != "drop":
         for name in names:
             if name in contacts.pairs:
@@ -699,3 +672,63 @@ def mirror_contacts(
         with contextlib.suppress(ContactError):
             result = result.parent(child, parent)
     return result
+
+
+def _mirrored_names(
+    contacts: ContactSet,
+    base: ContactSet,
+    names: Iterable[str] | None,
+    rename: Callable[[str], str],
+    overwrite: bool,
+) -> dict[str, str]:
+    """Each patch to mirror (all by default, in order, once) and its new name; a ContactError for an
+    unknown name, names that collide, or names ``base`` has unless ``overwrite``."""
+    names = list(contacts.patches) if names is None else list(dict.fromkeys(names))
+    for name in names:
+        contacts[name]  # a clear error for an unknown name
+    new = {name: rename(name) for name in names}
+    if len(set(new.values())) != len(new):
+        raise ContactError(f"flipping {', '.join(names)} gives repeated names {', '.join(new.values())}")
+    taken = [n for n in new.values() if n in base]
+    if taken and not overwrite:
+        raise ContactError(
+            f"the target already has patches named {', '.join(taken)}; pass overwrite to replace them"
+        )
+    return new
+
+
+def _mirrored_patch(patch: ContactPatch, mirror: MirrorMap) -> ContactPatch:
+    """The patch's points and axis on the target: the axis keeps its shape mirrored (segment lengths,
+    negated turning angles, mirrored tangents) and the patch is parameterized anew around it."""
+    axis = patch.axis
+    tangents = mirror.map_directions(axis.points, axis.tangents)
+    mirrored_axis = Axis.embedded(
+        mirror.target, mirror.map_points(axis.points), axis.lengths, np.conj(axis.turning), tangents
+    )
+    return ContactPatch(mirror.target, mirror.map_points(patch.points), mirrored_axis)
+
+
+def _mirrored_links(
+    contacts: ContactSet,
+    base: ContactSet,
+    new: dict[str, str],
+    rename: Callable[[str], str],
+    patches: dict[str, ContactPatch],
+) -> tuple[dict[str, Link], list[tuple[str, str]]]:
+    """The parent links of the mirrored set: ``base``'s that neither start nor end at a replaced patch,
+    and each mirrored child's mirrored link when its parent was mirrored along; and the (child, parent)
+    pairs to link anew (measured on the result): ``base``'s children of a replaced patch, and mirrored
+    children whose parent was not mirrored but whose parent's flipped name is among ``patches``."""
+    replaced = set(new.values())
+    kept = {c: link for c, link in base.links.items() if c not in replaced}
+    links = {c: link for c, link in kept.items() if link.parent not in replaced}
+    relink = [(c, link.parent) for c, link in kept.items() if link.parent in replaced]
+    for name in new:
+        link = contacts.links.get(name)
+        if link is None:
+            continue
+        if link.parent in new:
+            links[new[name]] = Link(new[link.parent], link.length, np.conj(link.leave), np.conj(link.arrive))
+        elif rename(link.parent) in patches:
+            relink.append((new[name], rename(link.parent)))
+    return links, relink

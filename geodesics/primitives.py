@@ -2,9 +2,8 @@
 
 Every function returns a validated :class:`~geodesics.mesh.TriMesh` whose faces are counter-clockwise seen
 from outside (from +z for the plane, away from the axis for tubes and cones, away from the centre for closed
-surfaces). Construction is vectorized with numpy (a 1,000,000-face torus takes a few seconds, mostly in
-TriMesh's validation), and all randomness comes from ``np.random.default_rng(seed)``, so equal arguments
-give identical arrays.
+surfaces). Construction is vectorized with numpy, and all randomness comes from
+``np.random.default_rng(seed)``, so equal arguments give identical arrays.
 
 Grid-like surfaces (:func:`grid_plane`, :func:`cylinder`, :func:`cone`) are built on a parameter grid whose
 cells are split into two triangles along a diagonal chosen at random per cell (so vertex valences vary
@@ -405,8 +404,8 @@ def scan_like_torus(n_points: int, major=1.0, minor=0.35, seed=0) -> TriMesh:
     and v by ``minor``, i.e. in the flat metric of the torus's core (in the plain unit square, the u direction
     would be stretched ``major / minor`` times more than v on the surface, and with fewer than about a
     thousand points some long, thin triangles would fold over into the tube). Only the tile copies within a
-    few point spacings of the unit square are triangulated, which changes nothing near it but is several
-    times faster.
+    few point spacings of the unit square are triangulated, which changes nothing near it and leaves most
+    copies out.
 
     Parameters
     ----------

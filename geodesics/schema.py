@@ -179,8 +179,8 @@ class Fields:
 
 def _all_numbers(values) -> bool:
     """Whether a (nested) list holds JSON numbers only: ``np.array`` would take booleans and numeric
-    strings for numbers. A ragged list holds lists where numbers should be: False. Vectorized: a patch's
-    (2000, 3) list takes 0.4 ms (1.2 ms element by element)."""
+    strings for numbers. A ragged list holds lists where numbers should be: False. Vectorized: one object
+    array, not a Python loop over the elements."""
     return set(map(type, np.array(values, dtype=object).ravel())) <= {int, float}
 
 

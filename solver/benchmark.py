@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from geodesics import SurfacePoints, TriMesh
-from geodesics.benchmark import Row, _median_time
+from geodesics.benchmark import Row, median_time
 
 from . import hands, objects
 from .grasp import flex_to_contact, grasp
@@ -173,7 +173,7 @@ def run(
     hand, points, targets, normals, _ = bench_problem(contacts)
     what = f"human hand, {hand.rig.n_dofs} DOF, {len(points):,} contacts, from rest"
     problem = ContactIK(hand, points, targets, normals)
-    ours = _median_time(problem.solve, repeat)
+    ours = median_time(problem.solve, repeat)
     result = problem.solve()
     rows.append(
         Row(
@@ -205,7 +205,7 @@ def run(
     for name in ALGORITHMS:
         say(f"optimizer {name}")
         solver = ContactIK(hand, points, targets, normals, algorithm=name)
-        t = _median_time(solver.solve, repeat)
+        t = median_time(solver.solve, repeat)
         r = solver.solve()
         recovered = _recovery_rate(name, reliability_poses)
         rows.append(
@@ -220,7 +220,7 @@ def run(
     scene = cylinder_grasp()
     hand = scene.hand
     closed = grasp(hand, scene.sdf)
-    t = _median_time(lambda: grasp(hand, scene.sdf), repeat)
+    t = median_time(lambda: grasp(hand, scene.sdf), repeat)
     touching = sum(closed.touching.values())
     rows.append(
         Row(
@@ -231,7 +231,7 @@ def run(
     )
     tip = SurfacePoints.from_vertices(hand.mesh, [int(np.argmax(hand.mesh.vertices[:, 1]))])
     dofs = hand.flexion_dofs("middle")
-    t = _median_time(lambda: flex_to_contact(hand, hand.rig.rest, dofs, tip, scene.sdf), repeat)
+    t = median_time(lambda: flex_to_contact(hand, hand.rig.rest, dofs, tip, scene.sdf), repeat)
     flex = flex_to_contact(hand, hand.rig.rest, dofs, tip, scene.sdf)
     rows.append(
         Row(

@@ -15,6 +15,16 @@ from its base at the origin, its suction side facing -z.
 Rigs: the root is the forearm (6 DOF) for the hands and the base for the tentacle; every other bone is a
 3-DOF ball joint with anatomical limits. The human and witch hands have 17 bones (54 DOF), the alien
 hand 13 (42 DOF), the tentacle 14 (45 DOF).
+
+**Left hands** (``make_hand(kind, side="left")``) are the right ones reflected through the armature's
+x = 0 plane (:func:`mirror_hand`: vertex x negated, triangles reversed so normals still point out, each
+rest matrix ``S M S`` with ``S = diag(-1, 1, 1)``), as rigs of their own: a right pose ``θ`` corresponds
+to the left pose :func:`mirror_theta` ``(θ)`` (root x location negated, every bone's y and z Euler
+angles negated, x angles kept: ``S R S`` for ``R = Rz(c) Ry(b) Rx(a)`` is ``Rz(-c) Ry(-b) Rx(a)``), with
+limits mirrored alike, so flexion stays a positive x rotation. A hand is named by a kind string: the
+kind for the right hand, the kind and :data:`LEFT` (``"human-left"``) for its mirror image, as a
+motion's ``source_kind`` and :class:`solver.retarget.HandSpec` name it; :func:`hand_from_kind` builds
+either.
 """
 
 from __future__ import annotations
@@ -32,6 +42,10 @@ from .subdivision import Cage, catmull_clark, quads_to_triangles
 
 #: The manipulators :func:`make_hand` builds.
 KINDS = ("human", "witch", "alien", "tentacle")
+#: The sides :func:`make_hand` builds: the modelled right hand and its mirror image.
+SIDES = ("right", "left")
+#: Suffix of a mirrored (left) hand's kind string (:func:`hand_from_kind`, a motion's ``source_kind``).
+LEFT = "-left"
 #: Catmull-Clark levels applied to the cages.
 SUBDIVISIONS = 2
 #: A ring of four cage vertices at half-size a subdivides to a near circle of radius about 0.93 a.
@@ -456,7 +470,7 @@ def _tentacle(scale: float) -> Hand:
     return build.finish("tentacle", scale, {"tentacle": tuple(range(n))})
 
 
-def make_hand(kind: str = "human", scale: float = 1.0) -> Hand:
+def make_hand(kind: str = "human", scale: float = 1.0, *, side: str = "right") -> Hand:
     """A procedural, rigged and skinned manipulator.
 
     Parameters
@@ -468,6 +482,9 @@ def make_hand(kind: str = "human", scale: float = 1.0) -> Hand:
     scale : float
         Multiplies every length (scale 1 is in metres: the human hand is about 19 cm from wrist to
         middle fingertip).
+    side : str
+        ``"right"`` (as modelled) or ``"left"``: its mirror image through the armature's x = 0 plane
+        (:func:`mirror_hand`; see the module docstring).
 
     Returns
     -------
@@ -475,11 +492,57 @@ def make_hand(kind: str = "human", scale: float = 1.0) -> Hand:
         Deterministic: equal arguments give identical arrays. The mesh is closed, manifold and of
         genus 0, with every vertex on some face.
     """
+    if side not in SIDES:
+        raise SolverError(f"unknown side {side!r}; choose one of {', '.join(SIDES)}")
     if kind not in KINDS:
         raise SolverError(f"unknown hand kind {kind!r}; choose one of {', '.join(KINDS)}")
     scale = float(scale)
     if not (np.isfinite(scale) and scale > 0):
         raise SolverError(f"scale must be a positive finite number, got {scale!r}")
     if kind == "tentacle":
-        return _tentacle(scale)
-    return _palm_hand({"human": _HUMAN, "witch": _WITCH, "alien": _ALIEN}[kind], kind, scale)
+        hand = _tentacle(scale)
+    else:
+        hand = _palm_hand({"human": _HUMAN, "witch": _WITCH, "alien": _ALIEN}[kind], kind, scale)
+    return mirror_hand(hand) if side == "left" else hand
+
+
+def hand_from_kind(kind: str, scale: float = 1.0) -> Hand:
+    """The procedural hand a kind string names: ``"<kind>"`` the right hand, ``"<kind>-left"``
+    (:data:`LEFT`) its mirror image, as a motion's ``source_kind`` and ``source_scale`` name its source
+    rig (:func:`make_hand`'s ``kind`` and ``scale``)."""
+    if kind.endswith(LEFT):
+        return make_hand(kind[: -len(LEFT)], scale, side="left")
+    return make_hand(kind, scale)
+
+
+# ------------------------------------------------------------------------------------------- mirroring
+
+
+def mirror_hand(hand: Hand) -> Hand:
+    """The mirror image of a procedural hand through its armature's x = 0 plane (a left hand from a
+    right one), as a rig of its own: see the module docstring for the conventions."""
+    rig = hand.rig
+    S = np.diag([-1.0, 1.0, 1.0, 1.0])
+    M = S @ rig.matrix_local @ S
+    lower, upper = rig.lower.copy(), rig.upper.copy()
+    flip = _mirror_signs(rig) < 0
+    lower[flip], upper[flip] = -rig.upper[flip], -rig.lower[flip]
+    mirrored = Rig(rig.names, rig.parents, M, rig.lengths, lower, upper, rig.locked, rig.rotation_modes)
+    mesh = TriMesh(hand.mesh.vertices * [-1.0, 1.0, 1.0], hand.mesh.faces[:, ::-1])
+    return Hand(mesh, mirrored, hand.weights, hand.kind, hand.length, hand.chains)
+
+
+def _mirror_signs(rig: Rig) -> np.ndarray:
+    """(d,) +1 or -1 per DOF: the mirrored rig's DOF is the sign times the original's."""
+    if any(mode != "XYZ" for mode in rig.rotation_modes):
+        raise SolverError("mirroring needs XYZ Euler bones (the procedural hands have them)")
+    signs = np.ones(rig.n_dofs)
+    signs[0] = -1.0  # root location x
+    signs[3:][np.tile([False, True, True], rig.n_bones)] = -1.0
+    return signs
+
+
+def mirror_theta(rig: Rig, theta) -> np.ndarray:
+    """(..., d) the mirrored rig's DOFs that pose the mirror image of ``rig`` posed at θ (..., d) (an
+    involution: applying it twice gives θ back)."""
+    return np.asarray(theta, dtype=np.float64) * _mirror_signs(rig)

@@ -20,14 +20,11 @@ rigid skin cannot flatten: a round fingertip pad pressed onto a mug patch of the
 sinks its centre and its tip into the mug by millimetres to bring its rim down. With the object's
 signed distance in the objective the pad rests on the surface instead, its rim a little off. λo is
 large (:data:`KEEP_OUT_WEIGHT`): a vertex a millimetre inside costs what thirty contacts a centimetre
-off do, so a few hundred contacts cannot pull a fingertip into the object. (It was chosen on the
-demo's grasp, ``contact-edit demo``, started with the palm 0.5 to 4 mm off the mug: at 300 the
-deepest skin ended up to 3.2 mm inside, at 1000 up to 2.5 mm, at 3000 at most 0.07 mm, in about twice
-the evaluations.) Only skin within :data:`KEEP_OUT_BAND` of the surface is seen, which keeps the term
-cheap; skin that contacts pull right through a thin wall (into a mug's hollow) is not pushed back, so
-measure the result (the add-on's solve reports the deepest vertex). The term sees vertices: between
-them a face can cut a sharp edge of the object a little deeper (the demo's thumb, 0.8 mm at the
-mug's rim, where no vertex is 0.1 mm in).
+off do, so a few hundred contacts cannot pull a fingertip into the object. Only skin within
+:data:`KEEP_OUT_BAND` of the surface is seen, which keeps the term cheap; skin that contacts pull right
+through a thin wall (into a mug's hollow) is not pushed back, so measure the result (the add-on's solve
+reports the deepest vertex). The term sees vertices: between them a face can cut a sharp edge of the
+object a little deeper than any vertex is.
 
 **Squared or plain distances.** Contact Edit's Eq. 2 squares the contact distances; the retargeting
 paper's Eq. 4-5 sum plain L2 distances (Γ_MD, Γ_CD). ``norm="l2"`` gives the latter for the contact and
@@ -47,12 +44,9 @@ leaving the root out lets the whole hand travel to the object freely.
 
 The gradient is analytic (reverse mode through the skinning, :class:`solver.rig.skinning.VertexSkin`);
 finite-difference gradients, as the papers used, are available for comparison. The optimizer is NLopt's
-SLSQP by default, chosen by measurement (``contact-edit bench solver`` and the pose-recovery tests): on
-the 2,000-contact human-hand solve it reaches the same energy as L-BFGS in 1-1.3x its time, and over 50
-random tentacle poses (60 points per patch, root perturbed) it recovered all 50 where L-BFGS recovered 41
-(L-BFGS ended in poorer minima with many DOFs pinned at their bounds; on 10-pose samples the two are
-within noise); MMA (the retargeting paper's choice) and CCSA had not converged after 2,000 evaluations,
-six times SLSQP's. All four are available (see :data:`ALGORITHMS`).
+SLSQP by default, preferred to L-BFGS, MMA (the retargeting paper's choice) and CCSA on the benchmark
+solve and the random-pose recovery (``contact-edit bench solver`` prints the comparison); all four are
+available (see :data:`ALGORITHMS`).
 """
 
 from __future__ import annotations

@@ -15,8 +15,7 @@ competing faces with absolute tolerances (1e-13 on dot products, 1e-8 on squared
 in metres, a tenth of a millimetre from its surface, it can return a neighbouring face's point several
 percent farther (the tests compare it on meshes scaled up until its tolerances vanish, and check that
 ours are scale-invariant); it signs points whose closest point is on an edge or a vertex by ray-cast
-containment and leaves points within 1e-8 of the surface unsigned, where the pseudonormal is exact; and
-it is an order of magnitude slower on the solver's meshes.
+containment and leaves points within 1e-8 of the surface unsigned, where the pseudonormal is exact.
 
 :class:`HalfSpace` and :class:`Box` are the table or ground of the retargeting paper's Eq. 6, with
 gradients for the solver (Inigo Quilez's box distance).

@@ -9,7 +9,8 @@ Device side:
 * :class:`SerialReader` — a background thread polling the device over pyserial and publishing immutable
   :class:`DeviceState` snapshots; :class:`DeviceTopology` — the parent→children table behind it.
 * :class:`Simulator` — the firmware's state machines for a device tree, on a simulated clock, stepped by
-  hand or in real time behind a pty, with faults on the host link.
+  hand or in real time behind a pty, with faults on the host link; :mod:`tangible.firmware` is one
+  controller's state machine, :mod:`tangible.motions` the joint motions that drive its sensors.
 * :mod:`tangible.joint` — the two-ring universal joint: sensed angles ↔ rotation.
 
 Rig side:
@@ -35,13 +36,14 @@ from . import protocol
 from .device import SPLITTERS, DeviceTree, Piece, SplitterType
 from .errors import DeviceError, ProtocolError, RecordError, RigError, TangibleError
 from .joint import joint_angles, joint_rotation
+from .motions import KeyframeMotion, RandomMotion
 from .posespace import PoseSpace
 from .protocol import Command
 from .puppet import JointBinding, Puppet, PuppetPose, ScalarBinding, match_device
 from .reader import SerialReader, list_ports
 from .reduction import Kit, Reduction, reduce
 from .rigreducer import read_reduction, read_rig, write_reduction, write_rig
-from .simulator import Faults, KeyframeMotion, RandomMotion, Simulator
+from .simulator import Faults, Simulator
 from .skeleton import Skeleton, area_weights
 from .topology import ComponentState, DeviceState, DeviceTopology
 

@@ -14,17 +14,18 @@ from dataclasses import replace
 
 import numpy as np
 
-from geodesics.benchmark import Row, _median_time
+from geodesics.benchmark import Row, median_time
 
 from . import rotations as rot
 from .creatures import creature
 from .device import SPLITTERS, DeviceTree, Piece
+from .motions import RandomMotion
 from .posespace import PoseSpace
 from .protocol import CYCLE, MIN_ID, DataRecord, encode_record
 from .puppet import JointBinding, Puppet
 from .reader import SerialReader
 from .reduction import Kit, reduce
-from .simulator import Faults, RandomMotion, Simulator
+from .simulator import Faults, Simulator
 from .topology import DeviceTopology
 
 __all__ = ["link_device", "run", "run_reduction_curve"]
@@ -127,7 +128,7 @@ def _interpolation(repeat: int, say) -> list[Row]:
     rng = np.random.default_rng(0)
     a, b = rng.integers(0, len(samples), (2, 200))
     keys = rot.slerp(samples[a][:, driven], samples[b][:, driven], rng.uniform(0, 1, 200)[:, None])
-    per_key = _median_time(lambda: [space(k) for k in keys], repeat) / len(keys)
+    per_key = median_time(lambda: [space(k) for k in keys], repeat) / len(keys)
     rows = [
         Row(
             "pose interpolation per update, 100 bones (10 driven, 12 samples)",
@@ -141,7 +142,7 @@ def _interpolation(repeat: int, say) -> list[Row]:
         topo.observe(DataRecord(100 + i, 0 if i == 0 else 99 + i, 0, (0.1, 0.2, 0.3, 0.4)), 0.0)
     state = topo.snapshot(0.0)
     puppet = Puppet(sk, [JointBinding(100 + i, int(bone)) for i, bone in enumerate(driven)], samples=samples)
-    per_eval = _median_time(lambda: [puppet.evaluate(state) for _ in range(50)], repeat) / 50
+    per_eval = median_time(lambda: [puppet.evaluate(state) for _ in range(50)], repeat) / 50
     rows.append(
         Row(
             "Puppet.evaluate per frame, same rig, 10 live joints",

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from solver import SolverError, hands, objects
+from solver.retarget import synthetic
 from solver.subdivision import Cage, catmull_clark
 
 
@@ -92,6 +93,23 @@ def test_hands_are_deterministic_and_scale():
         hands.make_hand("robot")
     with pytest.raises(SolverError, match="scale"):
         hands.make_hand("human", scale=0)
+
+
+def test_left_hands_are_mirror_images_of_right_ones():
+    right, left = hands.make_hand("human", 1.5), hands.make_hand("human", 1.5, side="left")
+    S = np.diag([-1.0, 1.0, 1.0, 1.0])
+    assert left.mesh.vertices.tobytes() == (right.mesh.vertices * [-1.0, 1.0, 1.0]).tobytes()
+    assert left.mesh.faces.tobytes() == right.mesh.faces[:, ::-1].tobytes()
+    assert left.rig.matrix_local.tobytes() == (S @ right.rig.matrix_local @ S).tobytes()
+    signs = hands.mirror_theta(right.rig, np.ones(right.rig.n_dofs))
+    assert np.array_equal(np.where(signs < 0, -right.rig.upper, right.rig.lower), left.rig.lower)
+    # By kind string (a motion's source_kind), and under the name the synthetic motions gave it.
+    for name, hand in (("human", right), ("human-left", left)):
+        for built in (hands.hand_from_kind(name, 1.5), synthetic.source_hand(name, 1.5)):
+            assert built.mesh.vertices.tobytes() == hand.mesh.vertices.tobytes()
+            assert built.rig.matrix_local.tobytes() == hand.rig.matrix_local.tobytes()
+    with pytest.raises(SolverError, match="unknown side 'middle'"):
+        hands.make_hand("human", side="middle")
 
 
 def test_contact_patches_lie_on_the_palm_side():

@@ -361,9 +361,9 @@ def procedural_kind(mesh: TriMesh) -> str | None:
 
 
 def make_next_procedural_topology() -> bool:
-    """Make the next kind of hand that :func:`procedural_kind` compares with (20-40 ms each), so that its
-    first call need not make them all (about 0.1 s); False once every kind is made. The add-on calls it
-    on timer ticks after start-up."""
+    """Make the next kind of hand that :func:`procedural_kind` compares with, so that its first call need
+    not make them all at once; False once every kind is made. The add-on calls it on timer ticks after
+    start-up."""
     missing = [kind for kind in KINDS if kind not in _TOPOLOGIES]
     if missing:
         _topology(missing[0])

@@ -42,8 +42,8 @@ __all__ = [
 CONTACT_FRACTION = 0.01
 #: Mean spacing of the object's surface samples, as a fraction of the hand's size: 1.5 mm for the human
 #: hand, about 45 samples per cm² (43,000 on a mug 12 cm across), some 500 contacts where it holds the mug
-#: with the fingertips and palm. Sparser contacts let the retargeting's markers outweigh them: with 2.45 mm
-#: (a third as many) a human hand 1.25 times as large ends 4.8 mm from the mug instead of 3.0 mm.
+#: with the fingertips and palm. Sparser contacts let the retargeting's markers outweigh them, and a
+#: larger target hand then ends farther from the object.
 SPACING_FRACTION = 0.006
 #: Default pairing cutoff ε, in contact distances: 9.8 mm for the human hand, about the paper's 1 cm
 #: (``solver.retarget.pairing.DEFAULT_CUTOFF``). Contacts deeper inside the hand than ε are not sought:
@@ -150,7 +150,7 @@ def detect_contacts(
     """Object contacts of every frame: the object's surface samples within ``contact_distance`` of the
     posed hand, or inside it no deeper than ``cutoff`` (closed hands only; sought in the frames where
     some sample is found more than half ``contact_distance`` inside the skin, i.e. where the surfaces
-    cross that deep, since looking deeper costs four times as much).
+    cross that deep, since looking deeper is costly).
 
     Parameters
     ----------

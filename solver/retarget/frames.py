@@ -16,11 +16,10 @@ at the hand's vertices, and the prior to the rest pose (or a given pose) — ana
 ``u`` = the hand's size / 25, about a Maya centimetre on a life-size hand; 1 + n·m for normals; squared
 penetration depth over ``u`` for the table; squared radians for the prior), and they map one to one:
 ``Weights(d = λc λcd, n = λc λcn, m = λm, t = λt, p = λj)``. Only λj's default differs: ours is 10,
-Contact Edit's λp that ContactIK was tuned with, not 50. The paper's Γ_J is on Maya DOF values (degrees)
-and its distances are not squared, so its 50 has no exact counterpart in radians²; measured on the
-same-hand retarget of a synthetic grasp (1,500 contacts), λj = 50 biases the recovered finger joints by
-up to 10° against 3° at λj = 10 while changing nothing else (:meth:`RetargetWeights.paper` gives the
-paper's numbers for comparison).
+Contact Edit's λp (ContactIK's default), not 50. The paper's Γ_J is on Maya DOF values (degrees) and its
+distances are not squared, so its 50 has no exact counterpart in radians²; there it biases the
+recovered finger joints towards rest more than 10 does while changing nothing else
+(:meth:`RetargetWeights.paper` gives the paper's numbers for comparison).
 
 **The root pass** solves the root's six DOFs with every term of Eq. 3, but only over the markers and
 contacts on the forearm and palm: with the fingers held at rest, finger markers and contacts would drag
@@ -40,8 +39,8 @@ one contact, so one marker point stands in as a contact with zero distance and n
 terms are then exactly zero).
 
 **The table** term is left out of a frame whose hand, at the seed pose, is farther than a hand length
-from the table (it cannot reach it within one solve; evaluating the box distance at every vertex is
-about 40% of an evaluation's cost); if the solved pose nevertheless penetrates the table, the frame is
+from the table (it cannot reach it within one solve, and the box distance at every vertex is a large
+part of an evaluation's cost); if the solved pose nevertheless penetrates the table, the frame is
 solved again with the term.
 """
 
@@ -60,6 +59,7 @@ from geodesics import SurfacePoints
 from geodesics.rigid import rigid_fit
 
 from ..errors import SolverError
+from ..hands import hand_from_kind
 from ..ik import ContactIK, Markers, Weights
 from ..rig import ControlRig, SkinnedMesh
 from ..rotations import matrix_to_euler
@@ -73,8 +73,8 @@ if TYPE_CHECKING:  # pragma: no cover
 STAGES = ("root", "full")
 #: Objective evaluations per solve at most.
 MAX_EVALUATIONS = 1000
-#: NLopt algorithm of the per-frame solves: L-BFGS. From a root estimate (not from rest, as in Contact
-#: Edit's single-pose benchmark) it reaches SLSQP's energy in about half the evaluations.
+#: NLopt algorithm of the per-frame solves: L-BFGS, which from a root estimate (not from rest, as in
+#: Contact Edit's single-pose benchmark) reaches SLSQP's energy in fewer evaluations.
 ALGORITHM = "lbfgs"
 #: Relative energy change at which a frame's solve stops.
 FTOL_REL = 1e-7
@@ -118,7 +118,8 @@ class RetargetWeights:
 @dataclass(frozen=True)
 class HandSpec:
     """A procedural target hand by name (:func:`solver.hands.make_hand`'s kinds, or ``"<kind>-left"`` for
-    its mirror image): cheap to send to workers, rebuilt once per process."""
+    its mirror image: :func:`solver.hands.hand_from_kind`): cheap to send to workers, rebuilt once per
+    process."""
 
     kind: str
     scale: float = 1.0
@@ -129,12 +130,12 @@ class HandSpec:
 
 @lru_cache(maxsize=8)
 def _built_hand(kind: str, scale: float):
-    from .synthetic import source_hand  # knows the mirrored left hands ("human-left") too
-
-    return source_hand(kind, scale)
+    return hand_from_kind(kind, scale)
 
 
-def _hand(hand) -> SkinnedMesh:
+def as_hand(hand) -> SkinnedMesh:
+    """The :class:`~solver.SkinnedMesh` a task's ``hand`` stands for: a :class:`HandSpec` built (once per
+    process), a SkinnedMesh as it is."""
     if isinstance(hand, HandSpec):
         return hand.build()
     if isinstance(hand, SkinnedMesh):
@@ -354,7 +355,7 @@ def _near_table(hand, table: Box | None, theta) -> bool:
 def solve_frame(task: FrameTask) -> FrameResult:
     """Solve one frame's pose (Eq. 3): picklable, independent of every other frame."""
     start = time.perf_counter()
-    hand = _hand(task.hand)
+    hand = as_hand(task.hand)
     rig = hand.rig
     seed = rig.check_theta(task.seed, "seed")
     task = whole = replace(task, seed=seed)
@@ -473,7 +474,7 @@ def build_tasks(
     """
     from .transfer import transfer_motion
 
-    target = _hand(hand)
+    target = as_hand(hand)
     weights = weights or RetargetWeights()
     if hand_contacts is None and motion.hand_contacts is not None:
         moved = transfer_motion(motion, annotation, target.mesh)

@@ -10,8 +10,8 @@ run stopped part way goes on from them) and writes the pipeline's outputs there
 
 :class:`ChildRun` runs it in a child process started by Python's spawn method: the parent only reads
 progress messages from a queue, so nothing the retarget computes competes with the parent's own thread
-for Python's global interpreter lock (a worker thread in Blender's process held its event loop back by
-half a second at a time, measured). The child's own frames go to worker processes as usual.
+for Python's global interpreter lock (a worker thread in Blender's process held its event loop back).
+The child's own frames go to worker processes as usual.
 """
 
 from __future__ import annotations
@@ -311,7 +311,7 @@ def _child(job, motion, workers, messages, stop) -> None:
 def _yield_to_parent() -> None:
     """Lower this process's priority, and so its worker processes' (they inherit it), below the parent's:
     with as many busy processes as cores, the parent (Blender drawing its window) would otherwise get a
-    share of a core and stall for half a second at a time (measured on two cores)."""
+    share of a core and stall."""
     if hasattr(os, "nice"):
         os.nice(CHILD_NICENESS)
     elif sys.platform == "win32":

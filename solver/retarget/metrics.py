@@ -491,59 +491,13 @@ def plot_metrics(
     axes = list(np.atleast_1d(fig.subplots(panels, 1, sharex=True)))
     bottom = axes[-1]  # (fig.axes also holds the contact count's twin axis)
     if title is None:
-        lengths = [v.size for v in series]
-        if intersections is not None:
-            lengths.append(np.asarray(intersections.hand_object).size)
-        frames = max(lengths)
-        title = f"retargeting metrics: {frames} frames ({frames / fps:.1f} s at {fps:g} fps)"
+        title = _default_title(series, intersections, fps)
     if title:
         fig.suptitle(title)
     if series:
-        ax = axes.pop(0)
-        for values, label, color in (
-            (marker_distance, "marker distance", "tab:orange"),
-            (contact_distance, "contact distance", "tab:blue"),
-        ):
-            if values is None:
-                continue
-            cm = 100.0 * np.asarray(values, dtype=np.float64).reshape(-1)
-            ax.plot(np.arange(cm.size) / fps, cm, color=color, lw=1.0, label=label)
-        ax.set_ylabel("distance (cm)")
-        ax.set_ylim(bottom=0.0)
-        handles, labels = ax.get_legend_handles_labels()
-        if contact_count is not None:
-            # A count, not a distance: on its own axis, drawn behind the distance curves.
-            count = np.asarray(contact_count, dtype=np.float64).reshape(-1)
-            twin = ax.twinx()
-            twin.fill_between(
-                np.arange(count.size) / fps,
-                count,
-                color="pink",
-                alpha=0.5,
-                lw=0,
-                label="contacts (right axis)",
-            )
-            top = float(np.nanmax(count)) if count.size and np.nanmax(count) > 0 else 1.0
-            twin.set_ylim(0.0, 1.05 * top)
-            twin.set_ylabel("contacts per frame (count)")
-            ax.set_zorder(twin.get_zorder() + 1)
-            ax.patch.set_visible(False)
-            more, names = twin.get_legend_handles_labels()
-            handles, labels = handles + more, labels + names
-        ax.legend(handles, labels, loc="upper right", fontsize="small")
-        ax.grid(alpha=0.3)
+        _plot_distances(axes.pop(0), fps, marker_distance, contact_distance, contact_count)
     if intersections is not None:
-        ax = axes.pop(0)
-        for values, label, color in (
-            (intersections.hand_object, "hand-object", "tab:green"),
-            (intersections.self_intersection, "self", "tab:red"),
-            (intersections.table, "table", "tab:blue"),
-        ):
-            v = np.asarray(values, dtype=np.float64).reshape(-1)
-            ax.plot(np.arange(v.size) / fps, v, color=color, lw=1.0, label=label)
-        ax.set_ylabel("intersection (% of hand volume)")
-        ax.legend(loc="upper right", fontsize="small")
-        ax.grid(alpha=0.3)
+        _plot_intersections(axes.pop(0), fps, intersections)
     bottom.set_xlabel("time (s)")
     fig.tight_layout()
 
@@ -551,3 +505,63 @@ def plot_metrics(
     with atomic_file(target) as fh:
         fig.savefig(fh, format="png", dpi=dpi)
     return target
+
+
+def _default_title(series: list[np.ndarray], intersections: Intersections | None, fps: float) -> str:
+    """The frame count, duration and frame rate of the longest curve."""
+    lengths = [v.size for v in series]
+    if intersections is not None:
+        lengths.append(np.asarray(intersections.hand_object).size)
+    frames = max(lengths)
+    return f"retargeting metrics: {frames} frames ({frames / fps:.1f} s at {fps:g} fps)"
+
+
+def _plot_distances(ax, fps: float, marker_distance, contact_distance, contact_count) -> None:
+    """The top panel (Fig. 11): marker and contact distances in centimetres, and the contact count per
+    frame on its own right axis, behind them."""
+    for values, label, color in (
+        (marker_distance, "marker distance", "tab:orange"),
+        (contact_distance, "contact distance", "tab:blue"),
+    ):
+        if values is None:
+            continue
+        cm = 100.0 * np.asarray(values, dtype=np.float64).reshape(-1)
+        ax.plot(np.arange(cm.size) / fps, cm, color=color, lw=1.0, label=label)
+    ax.set_ylabel("distance (cm)")
+    ax.set_ylim(bottom=0.0)
+    handles, labels = ax.get_legend_handles_labels()
+    if contact_count is not None:
+        # A count, not a distance: on its own axis, drawn behind the distance curves.
+        count = np.asarray(contact_count, dtype=np.float64).reshape(-1)
+        twin = ax.twinx()
+        twin.fill_between(
+            np.arange(count.size) / fps,
+            count,
+            color="pink",
+            alpha=0.5,
+            lw=0,
+            label="contacts (right axis)",
+        )
+        top = float(np.nanmax(count)) if count.size and np.nanmax(count) > 0 else 1.0
+        twin.set_ylim(0.0, 1.05 * top)
+        twin.set_ylabel("contacts per frame (count)")
+        ax.set_zorder(twin.get_zorder() + 1)
+        ax.patch.set_visible(False)
+        more, names = twin.get_legend_handles_labels()
+        handles, labels = handles + more, labels + names
+    ax.legend(handles, labels, loc="upper right", fontsize="small")
+    ax.grid(alpha=0.3)
+
+
+def _plot_intersections(ax, fps: float, intersections: Intersections) -> None:
+    """The bottom panel (Fig. 12): hand-object, self and table intersection volumes, in % of the hand's."""
+    for values, label, color in (
+        (intersections.hand_object, "hand-object", "tab:green"),
+        (intersections.self_intersection, "self", "tab:red"),
+        (intersections.table, "table", "tab:blue"),
+    ):
+        v = np.asarray(values, dtype=np.float64).reshape(-1)
+        ax.plot(np.arange(v.size) / fps, v, color=color, lw=1.0, label=label)
+    ax.set_ylabel("intersection (% of hand volume)")
+    ax.legend(loc="upper right", fontsize="small")
+    ax.grid(alpha=0.3)

@@ -25,9 +25,8 @@ The caster is ours rather than trimesh's pure-Python ``trimesh.ray.ray_triangle.
 which is the independent oracle of the tests (``tests/test_trimesh_oracle.py``: the same hits, faces and
 distances, and the same hit parities for rays through vertices and edges): trimesh casts half-lines only
 (an inverted ray needs the hits behind the contact too), finds candidate triangles with an r-tree query
-per ray in a Python loop (an order of magnitude slower on a frame's rays) and needs ``rtree``, which the
-Blender extension does not ship. Both work in float64 and report a crossing through an edge or a vertex
-once, which the parity rule needs.
+per ray in a Python loop and needs ``rtree``, which the Blender extension does not ship. Both work in
+float64 and report a crossing through an edge or a vertex once, which the parity rule needs.
 """
 
 from __future__ import annotations

@@ -15,8 +15,8 @@ Stages, each with its own progress (``progress(stage, done, total)``, stages in 
    (markers, without contacts) more than :data:`FIT_BAR` times as far from their targets as the
    per-frame estimate does, in median, the count grows by half until they fit or it reaches the frame
    count. A short, fast motion needs more than its length gives (a whole manipulation in 60 frames:
-   six control points put the contacts 80 mm off where the frames reached 7 mm). A result that still
-   misses is returned with a warning saying why (:attr:`Retarget.warnings`), never silently.
+   six control points cannot follow its grasp). A result that still misses is returned with a warning
+   saying why (:attr:`Retarget.warnings`), never silently.
 5. ``baselines`` (when asked for) — the §4.6 baselines on the same inputs, each given our root pass as
    its root and the same per-frame solves, refinement and spline (:mod:`.baselines`); all three methods'
    final curves measured alike into Table 1.
@@ -110,7 +110,7 @@ class RetargetOptions:
     use_table : bool
         Keep the hand out of the motion's table (Eq. 6).
     intersections : bool
-        Measure intersection volumes (a few ms per frame).
+        Measure intersection volumes.
     baselines : bool
         Also run the §4.6 baselines (:data:`BASELINES`) and compare the three methods (Table 1).
     """

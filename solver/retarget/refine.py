@@ -27,8 +27,8 @@ start poses (the caller decides how: in worker processes, on a Dask cluster). Th
    a row fail to bring it below ``1 - min_progress`` of the lowest yet, the rest are accelerations
    that interpolating and re-solving cannot remove: a motion faster than the threshold (a whole
    grasp-and-lift in half a second), or a solver that falls back into the same local minimum. The
-   paper's cap then costs 20 full re-solves for nothing (on a 60-frame motion, 200 s of a 230 s
-   retarget); a spike that shrinks with every round keeps the rounds going.
+   paper's cap then costs 20 full re-solves for nothing; a spike that shrinks with every round keeps
+   the rounds going.
 4. What is still flagged at the end is **reported and masked**: ``valid`` is False there, and the
    spline fit (:func:`solver.retarget.spline.fit_bspline`) ignores those samples, as the paper's fit does.
 
@@ -363,27 +363,85 @@ def refine_trajectory(
     X = np.array(theta, dtype=np.float64)
     rot = _checked_rotations(X, is_rotation)
     fps, length, e_acc = _positive(fps=fps, length=length, e_acc=e_acc)
-    max_iterations = int(max_iterations)
-    if max_iterations < 0:
-        raise SolverError(f"max_iterations must be non-negative, got {max_iterations}")
-    min_progress = float(min_progress)
-    if not 0 <= min_progress < 1:
-        raise SolverError(f"min_progress must be in [0, 1), got {min_progress!r}")
+    max_iterations, min_progress = _checked_rounds(max_iterations, min_progress)
     scale = np.where(rot, 1.0, 1.0 / length)  # DOF units -> threshold units
     path = _Trajectory(X, rot, resolve)
 
-    total = max_iterations + 1
     peaks, prefilter_frames = 0, np.empty(0, np.int64)
     if prefilter and len(X) >= 3:
-        H, replaced = hampel(path.U * scale, hampel_half_width, hampel_sigmas, floor=tolerance)
-        peaks = int(replaced.sum())
-        L = lowpass(H, fps, cutoff, filter_order)
-        changed = (np.abs(L - path.U * scale) > tolerance) | path.bad
-        prefilter_frames = np.flatnonzero(changed.any(1))
-        if prefilter_frames.size:
-            path.solve(prefilter_frames, L[prefilter_frames] / scale)
-    cancelled = progress is not None and bool(progress(1, total))
+        peaks, prefilter_frames = _prefilter(
+            path, scale, fps, tolerance, cutoff, filter_order, hampel_half_width, hampel_sigmas
+        )
+    cancelled = progress is not None and bool(progress(1, max_iterations + 1))
+    rounds = _resolve_violations(path, fps, scale, e_acc, max_iterations, min_progress, progress, cancelled)
 
+    violating = rounds.violating
+    log = RefineLog(
+        nonfinite=int((~np.isfinite(X)).sum()),
+        peaks=peaks,
+        prefilter_frames=prefilter_frames,
+        violations=tuple(rounds.counts),
+        excess=tuple(rounds.excess),
+        resolved_frames=tuple(rounds.frames),
+        unresolved=np.argwhere(violating),
+        converged=not violating.any(),
+        stalled=bool(violating.any()) and rounds.idle >= PATIENCE,
+        cancelled=rounds.cancelled,
+    )
+    return Refinement(path.U, ~violating, log)
+
+
+def _prefilter(
+    path: _Trajectory,
+    scale: np.ndarray,
+    fps: float,
+    tolerance: float,
+    cutoff: float,
+    filter_order: int,
+    hampel_half_width: int,
+    hampel_sigmas: float,
+) -> tuple[int, np.ndarray]:
+    """Step 1: the peak filter and the low-pass, then one re-solve of the frames they changed by more than
+    ``tolerance`` (or that no solve made finite), seeded by their filtered poses. Returns how many samples
+    the peak filter replaced and the frames re-solved."""
+    H, replaced = hampel(path.U * scale, hampel_half_width, hampel_sigmas, floor=tolerance)
+    peaks = int(replaced.sum())
+    L = lowpass(H, fps, cutoff, filter_order)
+    changed = (np.abs(L - path.U * scale) > tolerance) | path.bad
+    prefilter_frames = np.flatnonzero(changed.any(1))
+    if prefilter_frames.size:
+        path.solve(prefilter_frames, L[prefilter_frames] / scale)
+    return peaks, prefilter_frames
+
+
+@dataclass
+class _Rounds:
+    """How steps 2-3 went: the samples still violating (F, d) at the end, the violations and excess found
+    by each detection pass, the frames of each round, the rounds without progress at the end, and whether
+    the caller asked to stop."""
+
+    violating: np.ndarray
+    counts: list[int]
+    excess: list[float]
+    frames: list[np.ndarray]
+    idle: int
+    cancelled: bool
+
+
+def _resolve_violations(
+    path: _Trajectory,
+    fps: float,
+    scale: np.ndarray,
+    e_acc: float,
+    max_iterations: int,
+    min_progress: float,
+    progress: Callable[[int, int], bool | None] | None,
+    cancelled: bool,
+) -> _Rounds:
+    """Steps 2-3: find the violating samples, interpolate them and re-solve their frames, round after
+    round, until none is left, the caller stops it (``cancelled`` already, or ``progress`` says so), the
+    rounds reach ``max_iterations`` or :data:`PATIENCE` rounds in a row make no progress."""
+    total = max_iterations + 1
     counts: list[int] = []
     excess: list[float] = []
     rounds: list[np.ndarray] = []
@@ -404,20 +462,18 @@ def refine_trajectory(
         rounds.append(frames)
         if progress is not None and progress(len(rounds) + 1, total):
             cancelled = True
+    return _Rounds(violating, counts, excess, rounds, idle, cancelled)
 
-    log = RefineLog(
-        nonfinite=int((~np.isfinite(X)).sum()),
-        peaks=peaks,
-        prefilter_frames=prefilter_frames,
-        violations=tuple(counts),
-        excess=tuple(excess),
-        resolved_frames=tuple(rounds),
-        unresolved=np.argwhere(violating),
-        converged=not violating.any(),
-        stalled=bool(violating.any()) and idle >= PATIENCE,
-        cancelled=cancelled,
-    )
-    return Refinement(path.U, ~violating, log)
+
+def _checked_rounds(max_iterations, min_progress) -> tuple[int, float]:
+    """``max_iterations`` as a non-negative int and ``min_progress`` as a float in [0, 1)."""
+    max_iterations = int(max_iterations)
+    if max_iterations < 0:
+        raise SolverError(f"max_iterations must be non-negative, got {max_iterations}")
+    min_progress = float(min_progress)
+    if not 0 <= min_progress < 1:
+        raise SolverError(f"min_progress must be in [0, 1), got {min_progress!r}")
+    return max_iterations, min_progress
 
 
 def _checked_rotations(X: np.ndarray, is_rotation) -> np.ndarray:

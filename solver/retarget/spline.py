@@ -133,12 +133,43 @@ def fit_bspline(samples, n_control: int, *, valid=None, fps: float = 1.0, smooth
         For malformed input, a control-point count out of range, or DOFs with fewer than two valid
         samples (naming them).
     """
+    X, ok, fps, n = _checked_samples(samples, valid, fps, n_control)
+    F, d = X.shape
+    W = ok.astype(np.float64)
+    Y = np.where(ok, X, 0.0)
+
+    t = np.arange(F) / fps
+    knots = clamped_knots(t[0], t[-1], n)
+    A = BSpline.design_matrix(t, knots, DEGREE)  # (F, n) CSR, exactly DEGREE + 1 entries a row
+    u = DEGREE
+    products = _gram_products(A, F, n)
+    # DOFs with equal masks share a Gram matrix: group them by their masks' bytes.
+    packed = np.ascontiguousarray(np.packbits(ok, axis=0).T)  # (d, ceil(F / 8))
+    keys = packed.view(np.dtype((np.void, packed.shape[1]))).ravel()
+    _, first, group = np.unique(keys, return_index=True, return_inverse=True)
+    group = np.asarray(group).reshape(-1)
+    gram = (products.T @ W[:, first]).T.reshape(len(first), u + 1, n)
+    rhs = A.T @ (W * Y)  # (n, d)
+
+    control = np.empty((n, d))
+    for g in range(len(first)):
+        members = np.flatnonzero(group == g)
+        control[:, members] = _solve_banded(gram[g], rhs[:, members], n, u, smoothing)
+    values = A @ control
+    err = np.where(ok, values - Y, 0.0)
+    residual = np.sqrt((err**2).sum(0) / W.sum(0))
+    return SplineFit(knots, control, greville(knots), values, residual)
+
+
+def _checked_samples(samples, valid, fps, n_control) -> tuple[np.ndarray, np.ndarray, float, int]:
+    """The samples (F, d), which of them to fit (F, d) bool, the frame rate and the control point count,
+    checked as :func:`fit_bspline` says."""
     X = np.asarray(samples, dtype=np.float64)
     if X.ndim == 1:
         X = X[:, None]
     if X.ndim != 2:
         raise SolverError(f"samples must have shape (F, d), got {X.shape}")
-    F, d = X.shape
+    F = len(X)
     fps = float(fps)
     if not (np.isfinite(fps) and fps > 0):
         raise SolverError(f"fps must be a positive finite number, got {fps!r}")
@@ -159,20 +190,20 @@ def fit_bspline(samples, n_control: int, *, valid=None, fps: float = 1.0, smooth
             f"DOFs {describe_ids(few)} have fewer than two valid samples; a spline needs at least two",
             dofs=few,
         )
-    W = ok.astype(np.float64)
-    Y = np.where(ok, X, 0.0)
+    return X, ok, fps, n
 
-    t = np.arange(F) / fps
-    knots = clamped_knots(t[0], t[-1], n)
-    A = BSpline.design_matrix(t, knots, DEGREE)  # (F, n) CSR, exactly DEGREE + 1 entries a row
+
+def _gram_products(A: csr_array, F: int, n: int) -> csr_array:
+    """(F, (u + 1) n) per sample, the products of its basis values laid out in the upper banded storage of
+    an (n, n) Gram matrix (u = :data:`DEGREE`): times the (F, k) sample weights of k masks, the product
+    gives k Gram matrices ``Aᵀ W A`` at once."""
     cols = A.indices.reshape(F, DEGREE + 1)
     vals = A.data.reshape(F, DEGREE + 1)
-
     # Upper banded storage of every Gram matrix: ab[u + i - j, j] = G[i, j] for j - u <= i <= j.
     u = DEGREE
     a, b = np.triu_indices(DEGREE + 1)
     flat = (u + cols[:, a] - cols[:, b]) * n + cols[:, b]  # (F, pairs)
-    products = csr_array(
+    return csr_array(
         (
             (vals[:, a] * vals[:, b]).ravel(),
             flat.ravel(),
@@ -180,33 +211,21 @@ def fit_bspline(samples, n_control: int, *, valid=None, fps: float = 1.0, smooth
         ),
         shape=(F, (u + 1) * n),
     )
-    # DOFs with equal masks share a Gram matrix: group them by their masks' bytes.
-    packed = np.ascontiguousarray(np.packbits(ok, axis=0).T)  # (d, ceil(F / 8))
-    keys = packed.view(np.dtype((np.void, packed.shape[1]))).ravel()
-    _, first, group = np.unique(keys, return_index=True, return_inverse=True)
-    group = np.asarray(group).reshape(-1)
-    gram = (products.T @ W[:, first]).T.reshape(len(first), u + 1, n)
-    rhs = A.T @ (W * Y)  # (n, d)
 
-    control = np.empty((n, d))
-    for g in range(len(first)):
-        ab = gram[g]
-        members = np.flatnonzero(group == g)
-        weight = smoothing * ab[u].mean()
-        weak = ab[u] < WEAK_SUPPORT * np.median(ab[u])
-        rows = weak[:-2] | weak[1:-1] | weak[2:] if n >= 3 else np.zeros(0, bool)
-        try:
-            control[:, members] = solveh_banded(
-                ab + weight * _curvature_band(n, u, rows), rhs[:, members], check_finite=False
-            )
-        except np.linalg.LinAlgError:  # too few samples somewhere for its control points: regularize all
-            control[:, members] = solveh_banded(
-                ab + weight * _curvature_band(n, u, np.ones(n - 2, bool)), rhs[:, members], check_finite=False
-            )
-    values = A @ control
-    err = np.where(ok, values - Y, 0.0)
-    residual = np.sqrt((err**2).sum(0) / W.sum(0))
-    return SplineFit(knots, control, greville(knots), values, residual)
+
+def _solve_banded(ab: np.ndarray, rhs: np.ndarray, n: int, u: int, smoothing: float) -> np.ndarray:
+    """The control values (n, k) of k DOFs sharing the Gram matrix ``ab`` (upper banded storage), for
+    their right-hand sides (n, k): the curvature penalty on the control points with (almost) no data, or
+    on all of them when the data are too few somewhere (see the module docstring)."""
+    weight = smoothing * ab[u].mean()
+    weak = ab[u] < WEAK_SUPPORT * np.median(ab[u])
+    rows = weak[:-2] | weak[1:-1] | weak[2:] if n >= 3 else np.zeros(0, bool)
+    try:
+        return solveh_banded(ab + weight * _curvature_band(n, u, rows), rhs, check_finite=False)
+    except np.linalg.LinAlgError:  # too few samples somewhere for its control points: regularize all
+        return solveh_banded(
+            ab + weight * _curvature_band(n, u, np.ones(n - 2, bool)), rhs, check_finite=False
+        )
 
 
 def _curvature_band(n: int, u: int, rows: np.ndarray) -> np.ndarray:

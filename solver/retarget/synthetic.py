@@ -42,13 +42,11 @@ the scale-1 motion with every length multiplied by s.
 **Bimanual** (:func:`bimanual`): the right hand grasps one half of the object (its fingers curl
 against the object, the table and the object's symmetry plane, :data:`BIMANUAL_GRASPS`), and a
 left hand mirrors it through that plane in the object's frame at every frame. The left hand is the
-right rig reflected through its armature's x = 0 plane (:func:`mirror_hand`: vertex x negated,
-triangles reversed so normals still point out, each rest matrix ``S M S`` with ``S = diag(-1, 1, 1)``).
-Its DOFs are its own: a right pose ``θ`` corresponds to the left pose :func:`mirror_theta` ``(θ)``
-(root x location negated, every bone's y and z Euler angles negated, x angles kept: ``S R S`` for
-``R = Rz(c) Ry(b) Rx(a)`` is ``Rz(-c) Ry(-b) Rx(a)``), with limits mirrored alike, so flexion stays
-a positive x rotation. The left motion's ``source_kind`` is ``"human-left"``; :func:`source_hand`
-rebuilds either rig from a motion's ``source_kind`` and ``source_scale``.
+right rig reflected through its armature's x = 0 plane, a rig with DOFs of its own
+(:func:`solver.hands.mirror_hand` and :func:`solver.hands.mirror_theta`, whose conventions
+:mod:`solver.hands` states). The left motion's ``source_kind`` is ``"human-left"``;
+:func:`solver.hands.hand_from_kind` rebuilds either rig from a motion's ``source_kind`` and
+``source_scale``.
 """
 
 from __future__ import annotations
@@ -64,7 +62,8 @@ from geodesics import SurfacePoints, TriMesh
 from .. import objects as procedural
 from ..errors import SolverError
 from ..grasp import grasp
-from ..hands import Hand, make_hand
+from ..hands import LEFT, Hand, make_hand, mirror_hand, mirror_theta
+from ..hands import hand_from_kind as source_hand  # the name this module's callers know it by
 from ..rig import Rig
 from ..rotations import axis_angle_to_matrix, matrix_to_axis_angle, matrix_to_euler
 from ..sdf import Box, MeshSDF
@@ -114,8 +113,6 @@ GRIP_REACH = 0.75
 PENETRATION_BAND = 0.005
 #: Height of the lift (metres at scale 1).
 LIFT = 0.16
-#: Suffix of the source_kind of a mirrored (left) hand.
-LEFT = "-left"
 #: The table: full extents and where its top centre is relative to the object's start (scale 1).
 TABLE_SIZE = (1.0, 0.8, 0.04)
 TABLE_CENTER = (0.1, 0.1)
@@ -213,44 +210,6 @@ def _interpolate(T0: np.ndarray, T1: np.ndarray, s: np.ndarray, pivot) -> np.nda
 
 
 # ------------------------------------------------------------------------------------------- hands
-
-
-def mirror_hand(hand: Hand) -> Hand:
-    """The mirror image of a procedural hand through its armature's x = 0 plane (a left hand from a
-    right one), as a rig of its own: see the module docstring for the conventions."""
-    rig = hand.rig
-    S = np.diag([-1.0, 1.0, 1.0, 1.0])
-    M = S @ rig.matrix_local @ S
-    lower, upper = rig.lower.copy(), rig.upper.copy()
-    flip = _mirror_signs(rig) < 0
-    lower[flip], upper[flip] = -rig.upper[flip], -rig.lower[flip]
-    mirrored = Rig(rig.names, rig.parents, M, rig.lengths, lower, upper, rig.locked, rig.rotation_modes)
-    mesh = TriMesh(hand.mesh.vertices * [-1.0, 1.0, 1.0], hand.mesh.faces[:, ::-1])
-    return Hand(mesh, mirrored, hand.weights, hand.kind, hand.length, hand.chains)
-
-
-def _mirror_signs(rig: Rig) -> np.ndarray:
-    """(d,) +1 or -1 per DOF: the mirrored rig's DOF is the sign times the original's."""
-    if any(mode != "XYZ" for mode in rig.rotation_modes):
-        raise SolverError("mirroring needs XYZ Euler bones (the procedural hands have them)")
-    signs = np.ones(rig.n_dofs)
-    signs[0] = -1.0  # root location x
-    signs[3:][np.tile([False, True, True], rig.n_bones)] = -1.0
-    return signs
-
-
-def mirror_theta(rig: Rig, theta) -> np.ndarray:
-    """(..., d) the mirrored rig's DOFs that pose the mirror image of ``rig`` posed at θ (..., d) (an
-    involution: applying it twice gives θ back)."""
-    return np.asarray(theta, dtype=np.float64) * _mirror_signs(rig)
-
-
-def source_hand(kind: str, scale: float = 1.0) -> Hand:
-    """The procedural source rig of a motion's ``source_kind`` (``"human"``, or ``"human-left"`` for the
-    mirrored left hand of :func:`bimanual`) and ``source_scale``."""
-    if kind.endswith(LEFT):
-        return mirror_hand(make_hand(kind[: -len(LEFT)], scale))
-    return make_hand(kind, scale)
 
 
 def _open_pose(hand: Hand) -> np.ndarray:
