@@ -175,17 +175,18 @@ def test_rigid_fit_ignores_zero_weights_and_never_reflects():
     assert np.linalg.det(M[:3, :3]) == pytest.approx(1.0)
 
 
-def test_root_from_transform_round_trips_through_forward_kinematics(hand):
+def test_root_dofs_round_trip_through_forward_kinematics(hand):
     rig = hand.rig
     rng = np.random.default_rng(2)
     for _ in range(10):
         G = _random_rigid(rng)
         theta = rig.rest.copy()
-        theta[:6] = fr.root_from_transform(rig, G)
+        theta[:6] = rig.root_dofs(G)
         np.testing.assert_allclose(rig.pose_matrices(theta)[0], G @ rig.matrix_local[0], rtol=0, atol=1e-12)
         np.testing.assert_allclose(_root_transform(rig, theta), G, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(rig.root_transform(theta), G, rtol=0, atol=1e-12)
     # ``compatible`` picks the Euler solution nearest to it (no 2π jumps between frames).
-    shifted = fr.root_from_transform(rig, G, compatible=theta[3:6] + 2 * np.pi)
+    shifted = rig.root_dofs(G, compatible=theta[3:6] + 2 * np.pi)
     np.testing.assert_allclose(shifted[3:], theta[3:6] + 2 * np.pi, atol=1e-9)
     R = euler_to_matrix(shifted[3:], rig.rotation_modes[0])
     np.testing.assert_allclose(R, euler_to_matrix(theta[3:6], rig.rotation_modes[0]), atol=1e-12)

@@ -61,8 +61,7 @@ from geodesics.rigid import rigid_fit
 from ..errors import SolverError
 from ..hands import hand_from_kind
 from ..ik import ContactIK, Markers, Weights
-from ..rig import ControlRig, SkinnedMesh
-from ..rotations import matrix_to_euler
+from ..rig import SkinnedMesh
 from ..sdf import Box
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -265,20 +264,6 @@ class FrameResult:
 # ------------------------------------------------------------------------------------------- solving
 
 
-def root_from_transform(rig, G: np.ndarray, compatible=None) -> np.ndarray:
-    """(6,) root DOFs that move the root by the rigid transform G (4, 4), armature space: for a
-    :class:`~solver.Rig` (location, Euler angles) the root bone's pose matrix becomes
-    ``G @ matrix_local[0]``; for a :class:`~solver.rig.control_rig.ControlRig` the hand root moves by G from
-    where it was read (:meth:`~solver.rig.control_rig.ControlRig.root_dofs`). ``compatible`` (3,): the
-    rotation DOFs nearest to these, of the equal ones."""
-    if isinstance(rig, ControlRig):
-        return rig.root_dofs(G, compatible)
-    M = rig.matrix_local[0]
-    B = np.linalg.inv(M) @ G @ M
-    euler = matrix_to_euler(B[:3, :3], rig.rotation_modes[0], compatible=compatible)
-    return np.concatenate([B[:3, 3], euler])
-
-
 def _on_palm(hand: SkinnedMesh, points: SurfacePoints) -> np.ndarray:
     """(k,) whether each point moves with the root or its children (the forearm and palm), judged by
     the posed bone that moves the deform bone weighing most at the point's nearest corner."""
@@ -315,7 +300,7 @@ def _aligned_seed(hand: SkinnedMesh, task: FrameTask) -> np.ndarray:
     seed[:6] = rig.rest[:6]
     posed, _ = hand.posed_points(seed, task.marker_points)
     G = rigid_fit(posed, task.marker_targets)
-    seed[:6] = root_from_transform(rig, G, compatible=task.seed[3:6])
+    seed[:6] = rig.root_dofs(G, compatible=task.seed[3:6])
     return seed
 
 

@@ -496,6 +496,21 @@ class Rig(EulerDofs):
         """(b, 4, 4) posed armature-space bone matrices (Blender's ``pose_bone.matrix``) at θ (d,)."""
         return self.kinematics(theta, derivatives=False).matrices
 
+    def root_transform(self, theta) -> np.ndarray:
+        """(4, 4) the rigid motion θ gives the root bone from its rest placement, armature space:
+        ``pose[root] @ matrix_local[root]⁻¹``."""
+        M = self.matrix_local[0]
+        return M @ self.basis(theta)[0] @ np.linalg.inv(M)
+
+    def root_dofs(self, G, compatible=None) -> np.ndarray:
+        """(6,) root DOFs (location, Euler angles) whose :meth:`root_transform` is the rigid motion ``G``
+        (4, 4): the root bone's pose matrix becomes ``G @ matrix_local[0]``. ``compatible`` (3,): of the
+        equal Euler solutions, the one nearest to these angles."""
+        M = self.matrix_local[0]
+        B = np.linalg.inv(M) @ np.asarray(G, dtype=np.float64) @ M
+        euler = matrix_to_euler(B[:3, :3], self.rotation_modes[0], compatible=compatible)
+        return np.concatenate([B[:3, 3], euler])
+
     def kinematics(self, theta, derivatives: bool = True, dofs=None) -> Kinematics:
         """Forward kinematics of θ (d,), with the DOF axes and pivots unless ``derivatives`` is False
         (for every DOF: they cost next to nothing here, so ``dofs`` is accepted and ignored).

@@ -103,6 +103,15 @@ class RigLike(Protocol):
         """(n, s) the skin's weights (n, deform bones) per deformer, given the rest vertices (n, 3)."""
         ...
 
+    def root_transform(self, theta) -> np.ndarray:
+        """(4, 4) the rigid motion θ gives the hand's root from where θ = 0 puts it, armature space."""
+        ...
+
+    def root_dofs(self, G, compatible=None) -> np.ndarray:
+        """(6,) root DOFs whose :meth:`root_transform` is the rigid motion ``G`` (4, 4); ``compatible``
+        (3,): of equal rotations, the one nearest to these root rotation DOFs."""
+        ...
+
     def kinematics(self, theta, derivatives: bool = True, dofs=None) -> PosedRig:
         """Forward kinematics of θ (d,), with derivatives for the DOFs ``dofs`` (default all) unless
         ``derivatives`` is False."""
