@@ -116,7 +116,9 @@ def problem(scene: bpy.types.Scene, stage: str = "ALL") -> Problem:
     )  # fmt: skip
     solid = object_solid(object_set.mesh, M)
     keep_out = solid if settings.weight_penetration > 0 else None
-    ik = ContactIK(posed.skin, hand_points, positions, normals, weights, keep_out=keep_out)
+    sizes = tuple(len(hand_set[h]) for h, _ in pairs)
+    patches = [(h, size) for (h, _), size in zip(pairs, sizes, strict=True)]
+    ik = ContactIK(posed.skin, hand_points, positions, normals, weights, keep_out=keep_out, patches=patches)
     armature = posed.armature_object()
     return Problem(
         posed=posed,
@@ -124,7 +126,7 @@ def problem(scene: bpy.types.Scene, stage: str = "ALL") -> Problem:
         theta0=posed.start,
         free=free_dofs(posed, armature, stage),
         pairs=tuple(pairs),
-        sizes=tuple(len(hand_set[h]) for h, _ in pairs),
+        sizes=sizes,
         world_scale=bridge.uniform_scale(armature),
         target=target.name,
         solid=solid,

@@ -42,11 +42,20 @@ iterates and the same joint angles.
 everywhere contort to chase contacts; a strong prior on the joints keeps the pose near rest, and
 leaving the root out lets the whole hand travel to the object freely.
 
-The gradient is analytic (reverse mode through the skinning, :class:`solver.rig.skinning.VertexSkin`);
-finite-difference gradients, as the papers used, are available for comparison. The optimizer is NLopt's
-SLSQP by default, preferred to L-BFGS, MMA (the retargeting paper's choice) and CCSA on the benchmark
-solve and the random-pose recovery (``contact-edit bench solver`` prints the comparison); all four are
-available (see :data:`ALGORITHMS`).
+**The optimizer.** Every term is a sum of squares (the opposing normals too: ``1 + n·m = |n + m|² / 2``
+for unit normals), so by default the energy is minimized as one (:meth:`ContactIK.residuals`) by a
+trust-region method on its Gauss-Newton model (:mod:`solver.least_squares`), which needs tens of
+evaluations where NLopt's quasi-Newton methods need hundreds, and which a stiff term (the keep-out)
+cannot throw far. NLopt's SLSQP (the papers used NLopt), L-BFGS, MMA (the retargeting paper's choice) and
+CCSA remain available by name (:data:`ALGORITHMS`; ``contact-edit bench solver`` compares them), with
+the analytic gradient (reverse mode through the skinning, :class:`solver.rig.skinning.VertexSkin`) or
+the papers' finite differences.
+
+**Where a solve starts** (:mod:`solver.start`). A local solve from the hand's pose cannot reach a grasp
+that needs the wrist to travel and turn (Contact Edit §7 and §9). :meth:`ContactIK.solve` therefore
+starts, by default, from the grasp the contacts imply when the hand is far from them, and from the
+hand's pose when it is near them already (a small edit of a solved layout gives a nearby pose).
+``start="local"`` is Contact Edit's solve, from the given pose.
 """
 
 from __future__ import annotations
@@ -54,7 +63,7 @@ from __future__ import annotations
 import functools
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import nlopt
 import numpy as np
@@ -62,7 +71,10 @@ import numpy as np
 from geodesics import SurfacePoints
 
 from .errors import SolverError, describe_ids
+from .least_squares import minimize_squares
 from .rig import SkinnedMesh
+from .sdf import NarrowBand
+from .start import grasp_start
 
 #: The length unit is the rest bounding-box diagonal divided by this (1 cm on a 25 cm hand).
 UNITS_PER_SIZE = 25.0
@@ -73,6 +85,20 @@ ALGORITHMS = {
     "mma": nlopt.LD_MMA,
     "ccsaq": nlopt.LD_CCSAQ,
 }
+#: The default algorithm: the energy as a sum of squares, minimized by scipy's trust-region reflective
+#: method (:mod:`solver.least_squares`); it needs the squared norm and the analytic derivatives.
+TRUST_REGION = "trust-region"
+#: Where :meth:`ContactIK.solve` starts: ``"local"`` from the given pose, ``"global"`` from the grasp the
+#: contacts imply (:func:`solver.start.grasp_start`), ``"auto"`` the first when every patch but one has
+#: a contact within :data:`EDIT_REACH` of its target at the given pose (an edit of a solved layout: one
+#: patch moved or turned), else the second.
+STARTS = ("auto", "local", "global")
+#: A patch still meets its targets, for ``start="auto"``, within this many units u (5 mm on a life-size
+#: hand).
+EDIT_REACH = 0.5
+#: A patch touches when one of its contacts is this close to its target, in units u (2 mm on a life-size
+#: hand); :attr:`SolveResult.unreached` names the patches that do not.
+TOUCH_DISTANCE = 0.2
 #: What NLopt raises when it stops short of convergence (roundoff, or its generic failure). Its 2.9
 #: wheels, which the extension bundles, raise the generic failure as their own ``nlopt.runtime_error``
 #: (not a RuntimeError; nor can it be pickled, so a worker process could not even report it).
@@ -169,6 +195,18 @@ class SolveResult:
         on round-off; the best pose is still returned), ``"no free DOFs"`` (nothing was allowed to move)
         or ``"unchanged"`` (the optimizer found nothing better than the start, to ``ftol_rel``: a solve
         that moved nothing never reports convergence).
+    gaps : dict
+        Per contact patch (``ContactIK(patches=...)``, else one patch ``"contacts"``), the distance of its
+        closest contact from its target (scene units).
+    unreached : tuple of str
+        The patches whose gap is above :data:`TOUCH_DISTANCE`: those the pose does not bring onto the
+        object.
+    out_of_reach : tuple of str
+        Why: the patch the hand cannot reach together with the others (solved without it, every other
+        patch touches), or when there is no one such patch, all the unreached ones.
+    start : str
+        Where the solve started: ``"local"`` (the given pose) or ``"global"`` (the grasp the contacts
+        imply).
     """
 
     theta: np.ndarray
@@ -179,6 +217,10 @@ class SolveResult:
     distances: np.ndarray
     status: str
     start_energy: float = field(default=np.nan)
+    gaps: dict[str, float] = field(default_factory=dict)
+    unreached: tuple[str, ...] = ()
+    out_of_reach: tuple[str, ...] = ()
+    start: str = "local"
 
 
 def _array(value, shape_tail, what: str) -> np.ndarray:
@@ -186,6 +228,23 @@ def _array(value, shape_tail, what: str) -> np.ndarray:
     if a.ndim != 1 + len(shape_tail) or a.shape[1:] != shape_tail:
         raise SolverError(f"{what} must have shape (k, {', '.join(map(str, shape_tail))}), got {a.shape}")
     return a
+
+
+def _patches(patches, k: int) -> tuple[tuple[str, ...], np.ndarray]:
+    """(names, patch index (k,) per contact) of ``patches``, a sequence of (name, count), or one patch."""
+    if patches is None:
+        return ("contacts",), np.zeros(k, np.int64)
+    try:
+        names = tuple(str(name) for name, _ in patches)
+        counts = np.array([int(count) for _, count in patches], dtype=np.int64)
+    except (TypeError, ValueError):
+        raise SolverError("patches must be (name, count) pairs, one per patch, in contact order") from None
+    if counts.sum() != k or np.any(counts <= 0) or len(set(names)) != len(names):
+        raise SolverError(
+            f"patches must name each patch once and count its contacts (at least one each), {k} in all; "
+            f"got {len(names)} patches holding {int(counts.sum())} contacts"
+        )
+    return names, np.repeat(np.arange(len(names)), counts)
 
 
 def free_dofs(rig, free=None) -> np.ndarray:
@@ -224,8 +283,13 @@ class ContactIK:
         A previous keyed pose for the λk prior.
     unit : float, optional
         The length unit ``u`` (default: ``hand.size / UNITS_PER_SIZE``).
-    algorithm : str
-        One of :data:`ALGORITHMS`.
+    algorithm : str, optional
+        :data:`TRUST_REGION` (the default with the squared norm and analytic derivatives) or one of NLopt's
+        :data:`ALGORITHMS` (the default otherwise: ``"slsqp"``).
+    patches : sequence of (str, int), optional
+        The contacts' patches, in order: names and how many consecutive contacts each holds (default:
+        one patch ``"contacts"``). A global start weighs each patch alike, and the result names the
+        patches it does not bring onto the object.
     gradient : str
         ``"analytic"``, or for comparison with the papers (which used finite differences)
         ``"finite-difference"`` (forward: one energy evaluation per free DOF) or ``"central-difference"``
@@ -254,9 +318,10 @@ class ContactIK:
         keep_out=None,
         keyed=None,
         unit: float | None = None,
-        algorithm: str = "slsqp",
+        algorithm: str | None = None,
         gradient: str = "analytic",
         norm: str = "squared",
+        patches=None,
     ):
         if not isinstance(hand, SkinnedMesh):
             raise SolverError(
@@ -294,12 +359,23 @@ class ContactIK:
             raise SolverError(f"weights must be a solver.Weights, got {type(self.weights).__name__}")
         self.prior = rig.rest if prior is None else rig.check_theta(prior, "prior")
         self.keyed = None if keyed is None else rig.check_theta(keyed, "keyed")
-        if algorithm not in ALGORITHMS:
-            raise SolverError(f"unknown algorithm {algorithm!r}; use one of {', '.join(ALGORITHMS)}")
         if gradient not in GRADIENTS:
             raise SolverError(f"gradient must be one of {', '.join(GRADIENTS)}, got {gradient!r}")
         if norm not in NORMS:
             raise SolverError(f"norm must be one of {', '.join(NORMS)}, got {norm!r}")
+        squares = norm == "squared" and gradient == "analytic"
+        if algorithm is None:
+            algorithm = TRUST_REGION if squares else "slsqp"
+        if algorithm == TRUST_REGION and not squares:
+            raise SolverError(
+                f"the {TRUST_REGION} algorithm needs norm='squared' and the analytic gradient; use one of "
+                f"{', '.join(ALGORITHMS)}"
+            )
+        if algorithm != TRUST_REGION and algorithm not in ALGORITHMS:
+            raise SolverError(
+                f"unknown algorithm {algorithm!r}; use {TRUST_REGION} or one of {', '.join(ALGORITHMS)}"
+            )
+        self.patch_names, self.patch_of = _patches(patches, k)
         self.algorithm, self.gradient, self.norm = algorithm, gradient, norm
         self.unit = hand.size / UNITS_PER_SIZE if unit is None else float(unit)
         if not (np.isfinite(self.unit) and self.unit > 0):
@@ -325,7 +401,7 @@ class ContactIK:
         if obstacle is not None:
             self._solids.append(("table", self.weights.t, obstacle.evaluate))
         if keep_out is not None:
-            inside = functools.partial(keep_out.evaluate, band=KEEP_OUT_BAND * self.unit)
+            inside = NarrowBand(keep_out, KEEP_OUT_BAND * self.unit).evaluate
             self._solids.append(("penetration", self.weights.o, inside))
         extra = np.arange(hand.mesh.n_vertices) if self._solids else None
         self._skin = hand.point_skin(sets, extra)
@@ -398,6 +474,68 @@ class ContactIK:
         r = np.sqrt(np.einsum("ki,ki->k", diff, diff) / u2 + L2_SMOOTHING**2)
         return float(np.sum(r - L2_SMOOTHING)), diff / (u2 * r[:, None])
 
+    def residuals(self, theta, dofs=None, solids: bool = True) -> tuple[np.ndarray, np.ndarray, float, dict]:
+        """The energy as a sum of squares (norm ``"squared"``): residuals r (m,), their Jacobian (m, n)
+        with respect to the DOFs ``dofs`` (n,) (default all), the energy ``Σ r²`` and its terms.
+
+        The rows are the contacts' offsets ``√λd (p - t) / u``, the normals' ``√(λn / 2) (n + m)``, the
+        markers', the priors' and, with ``solids``, a row per vertex for the table and the object
+        (``√λ max(0, -sdf) / u``; zero outside). Without ``solids`` the energy and terms leave those out.
+        """
+        if self.norm != "squared":
+            raise SolverError("residuals need the squared norm (norm='squared')")
+        rig = self.hand.rig
+        t = rig.check_theta(theta)
+        index = np.arange(rig.n_dofs) if dofs is None else np.asarray(dofs, dtype=np.int64)
+        w, u, skin = self.weights, self.unit, self._skin
+        kin = rig.kinematics(t, True, index)
+        V = skin.vertices.positions(kin)
+        rows_r, rows_J, terms = [], [], {}
+
+        def points(point_set, targets, normals, w_p, w_n):
+            p, n, aux = point_set.geometry(V)
+            dp, dn = point_set.jacobian(n, aux, skin.vertices.jacobian(kin, point_set.rows)[:, :, index])
+            rows_r.append((np.sqrt(w_p) / u * (p - targets)).ravel())
+            rows_J.append(np.sqrt(w_p) / u * dp.reshape(-1, index.size))
+            if normals is not None:
+                rows_r.append((np.sqrt(w_n / 2) * (n + normals)).ravel())
+                rows_J.append(np.sqrt(w_n / 2) * dn.reshape(-1, index.size))
+            return p, n
+
+        p, n = points(skin.sets[0], self.target_points, self.target_normals, w.d, w.n)
+        terms["distance"] = w.d * float(np.sum((p - self.target_points) ** 2)) / u**2
+        terms["normal"] = w.n * float(np.sum(1.0 + np.einsum("ki,ki->k", n, self.target_normals)))
+        if self.markers is not None:
+            q, _ = points(skin.sets[1], self._marker_targets, None, w.m, 0.0)
+            terms["marker"] = w.m * float(np.sum((q - self._marker_targets) ** 2)) / u**2
+        for name, weight, evaluate in self._solids if solids else ():
+            rows = skin.extra_rows
+            sd, gradient = evaluate(V[rows])
+            depth = np.maximum(-sd, 0.0) / u
+            terms[name] = weight * float(np.sum(depth**2))
+            J = np.zeros((rows.size, index.size))
+            inside = np.flatnonzero(depth > 0)
+            if inside.size:
+                Jv = skin.vertices.jacobian(kin, rows[inside])[:, :, index]
+                J[inside] = -np.sqrt(weight) / u * np.einsum("vi,vid->vd", gradient[inside], Jv)
+            rows_r.append(np.sqrt(weight) * depth)
+            rows_J.append(J)
+        dp = np.where(self._prior_mask, t - self.prior, 0.0)
+        terms["prior"] = w.p * float(np.sum(dp**2))
+        rows_r.append(np.sqrt(w.p) * dp)
+        rows_J.append(np.sqrt(w.p) * np.eye(rig.n_dofs)[:, index] * self._prior_mask[:, None])
+        if self.keyed is not None:
+            dk = (t - self.keyed) / self._scale
+            terms["keyed"] = w.k * float(np.sum(dk**2))
+            rows_r.append(np.sqrt(w.k) * dk)
+            rows_J.append(np.sqrt(w.k) * np.eye(rig.n_dofs)[:, index] / self._scale[:, None])
+        return np.concatenate(rows_r), np.concatenate(rows_J), float(sum(terms.values())), terms
+
+    def gaps(self, theta) -> dict[str, float]:
+        """Per contact patch, the distance of its closest contact from its target at θ (d,)."""
+        d = self.distances(theta)
+        return {name: float(d[self.patch_of == i].min()) for i, name in enumerate(self.patch_names)}
+
     def distances(self, theta) -> np.ndarray:
         """(k,) distance of each posed hand point from its target at θ (d,)."""
         p, _ = self.hand.posed_points(theta, self.hand_points)
@@ -412,6 +550,7 @@ class ContactIK:
         progress: Callable[[Progress], bool | None] | None = None,
         max_evaluations: int = MAX_EVALUATIONS,
         ftol_rel: float = FTOL_REL,
+        start: str = "auto",
     ) -> SolveResult:
         """Minimize the energy from θ0 over the free DOFs.
 
@@ -423,36 +562,178 @@ class ContactIK:
             DOFs to solve (default: all); the others keep their θ0 value. Locked DOFs are never free.
             Staged solves: the root only first (``free = rig.dof_bone == 0``), then unlock more.
         progress : callable, optional
-            Called with a :class:`Progress` after each evaluation; returning True cancels the solve,
-            which then returns the best pose found so far.
+            Called with a :class:`Progress` after each evaluation (the best pose so far, by the whole
+            energy); returning True cancels the solve, which then returns the best pose found so far.
         max_evaluations : int
+            For the whole solve, its start included.
         ftol_rel : float
             Stop when an evaluation improves the energy by less than this fraction.
+        start : str
+            One of :data:`STARTS`: from θ0 (``"local"``), from the grasp the contacts imply
+            (``"global"``, :mod:`solver.start`; with the :data:`TRUST_REGION` algorithm and a free root),
+            or the second when the hand is far from its contacts (``"auto"``).
 
         Returns
         -------
         SolveResult
         """
+        clock = time.perf_counter()
+        result = self._solve(theta0, free, progress, max_evaluations, ftol_rel, start)
+        if len(result.unreached) > 1 and result.status != "cancelled":
+            why = self._out_of_reach(result, free)
+            result = replace(result, out_of_reach=why, seconds=time.perf_counter() - clock)
+        return result
+
+    def _solve(self, theta0, free, progress, max_evaluations, ftol_rel, start) -> SolveResult:
+        """:meth:`solve`, the unreached patches left unexplained."""
         rig = self.hand.rig
-        start = time.perf_counter()
+        clock = time.perf_counter()
         theta = rig.clip(rig.rest if theta0 is None else rig.check_theta(theta0, "theta0"))
         index = free_dofs(rig, free)
+        if start not in STARTS:
+            raise SolverError(f"start must be one of {', '.join(STARTS)}, got {start!r}")
         start_energy, start_terms = self.energy(theta)
-        final, energy, terms, count, status = minimize(
-            self.energy, functools.partial(self.energy_and_gradient, dofs=index), theta, index,
-            self._scale[index], rig, self.algorithm, max_evaluations, ftol_rel,
-            gradient=self.gradient, progress=progress, start=(start_energy, start_terms),
-        )  # fmt: skip
+        tally = _Tally(progress, theta, start_energy, start_terms)
+        mode = self._start_mode(start, theta, index)
+
+        def judge(t):
+            energy, terms = self.energy(t)
+            if tally.offer(t, energy, terms):
+                raise _Cancelled
+            return energy
+
+        try:
+            if mode == "global":
+                theta = grasp_start(
+                    self, theta, index,
+                    lambda t, dofs, count: self._descend(t, dofs, count, ftol_rel, tally, solids=False),
+                    judge,
+                )  # fmt: skip
+            budget = max(int(max_evaluations) - tally.count, 1)
+            status = self._descend(theta, index, budget, ftol_rel, tally, status=True)
+        except _Cancelled:
+            status = "cancelled"
+        if status == "converged" and start_energy - tally.energy <= ftol_rel * max(abs(start_energy), 1.0):
+            status = "unchanged"  # nothing better than where it started (to the stopping tolerance)
+        gaps = self.gaps(tally.theta)
+        unreached = tuple(name for name, gap in gaps.items() if gap > TOUCH_DISTANCE * self.unit)
         return SolveResult(
-            theta=final,
-            energy=energy,
-            terms=terms,
-            iterations=count,
-            seconds=time.perf_counter() - start,
-            distances=self.distances(final),
-            status=status,
+            theta=tally.theta,
+            energy=tally.energy,
+            terms=tally.terms,
+            iterations=tally.count,
+            seconds=time.perf_counter() - clock,
+            distances=self.distances(tally.theta),
+            status=status if index.size else "no free DOFs",
             start_energy=float(start_energy),
+            gaps=gaps,
+            unreached=unreached,
+            out_of_reach=unreached,
+            start=mode,
         )
+
+    def _out_of_reach(self, result: SolveResult, free) -> tuple[str, ...]:
+        """The patch that keeps the others from touching (see :attr:`SolveResult.out_of_reach`): each
+        unreached patch in turn, farthest first, left out of a local solve from the result's pose; the
+        first whose absence lets every other patch touch, else all the unreached."""
+        for name in sorted(result.unreached, key=result.gaps.get, reverse=True):
+            others = self._without(self.patch_names.index(name))
+            if not others._solve(result.theta, free, None, MAX_EVALUATIONS, FTOL_REL, "local").unreached:
+                return (name,)
+        return result.unreached
+
+    def _without(self, patch: int) -> ContactIK:
+        """This problem with the contacts of one patch left out."""
+        keep = self.patch_of != patch
+        names = [n for i, n in enumerate(self.patch_names) if i != patch]
+        return ContactIK(
+            self.hand, self.hand_points[np.flatnonzero(keep)], self.target_points[keep],
+            self.target_normals[keep], self.weights, prior=self.prior, markers=self.markers,
+            obstacle=self.obstacle, keep_out=self.keep_out, keyed=self.keyed, unit=self.unit,
+            algorithm=self.algorithm, gradient=self.gradient, norm=self.norm,
+            patches=[(n, int(np.sum(self.patch_of == self.patch_names.index(n)))) for n in names],
+        )  # fmt: skip
+
+    def _start_mode(self, start: str, theta: np.ndarray, index: np.ndarray) -> str:
+        """``"local"`` or ``"global"``: where :meth:`solve` starts (see :data:`STARTS`)."""
+        rig = self.hand.rig
+        can = self.algorithm == TRUST_REGION and np.any(rig.dof_bone[index] == 0)
+        if start == "global" and not can:
+            raise SolverError(
+                f"a global start needs the {TRUST_REGION} algorithm and the hand's root free to move"
+            )
+        if start != "auto":
+            return start
+        if not can:
+            return "local"
+        gaps = np.array(list(self.gaps(theta).values()))
+        far = int(np.sum(gaps > EDIT_REACH * self.unit))
+        return "local" if far <= min(1, gaps.size - 1) else "global"
+
+    def _descend(self, theta, index, max_evaluations, ftol_rel, tally, solids=True, status=False):
+        """A local solve of the DOFs ``index`` from θ with the configured algorithm, every evaluation
+        told to ``tally`` (which keeps the best pose by the whole energy); with ``solids`` False (the
+        trust region only) the table and object terms are left out, and the evaluations only counted.
+        Returns the solved θ, or with ``status`` the outcome (:class:`SolveResult`)."""
+        rig = self.hand.rig
+        if self.algorithm != TRUST_REGION:
+            final, _, _, _, outcome = minimize(
+                self.energy, functools.partial(self.energy_and_gradient, dofs=index), theta, index,
+                self._scale[index], rig, self.algorithm, max_evaluations, ftol_rel, gradient=self.gradient,
+                progress=lambda step: tally.offer(step.theta, step.energy, step.terms),
+            )  # fmt: skip
+            if tally.cancelled:
+                raise _Cancelled
+            return outcome if status else final
+        index = index[rig.lower[index] < rig.upper[index]]  # a DOF its limits pin is not free
+        if not index.size:
+            return "converged" if status else theta
+
+        def full(x):
+            t = theta.copy()
+            t[index] = x
+            return t
+
+        def told(x, energy, terms):
+            return tally.offer(full(x), energy, terms) if solids else tally.poll()
+
+        x, _, _, _, outcome = minimize_squares(
+            lambda x: self.residuals(full(x), index, solids), theta[index], rig.lower[index],
+            rig.upper[index], self._scale[index], max_evaluations, ftol_rel, told,
+        )  # fmt: skip
+        if outcome == "cancelled":
+            raise _Cancelled
+        return outcome if status else full(x)
+
+
+class _Cancelled(Exception):
+    """The progress callback asked to stop."""
+
+
+class _Tally:
+    """A solve's evaluations across its stages: their count, the best pose by the whole energy (the
+    start's, until one is better), and the progress reports (each with the best pose so far)."""
+
+    def __init__(self, progress, theta: np.ndarray, energy: float, terms: dict):
+        self.progress = progress
+        self.theta, self.energy, self.terms = theta.copy(), float(energy), dict(terms)
+        self.count = 0
+        self.cancelled = False
+
+    def offer(self, theta: np.ndarray, energy: float, terms: dict) -> bool:
+        """An evaluation of the whole energy at θ; whether to cancel."""
+        if energy < self.energy:
+            self.theta, self.energy, self.terms = theta.copy(), float(energy), dict(terms)
+        return self.poll()
+
+    def poll(self) -> bool:
+        """One more evaluation (of whatever objective); reports the best pose so far; whether to cancel."""
+        self.count += 1
+        if self.progress is not None and self.progress(
+            Progress(self.count, self.energy, dict(self.terms), self.theta.copy())
+        ):
+            self.cancelled = True
+        return self.cancelled
 
 
 def minimize(

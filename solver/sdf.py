@@ -17,6 +17,9 @@ percent farther (the tests compare it on meshes scaled up until its tolerances v
 ours are scale-invariant); it signs points whose closest point is on an edge or a vertex by ray-cast
 containment and leaves points within 1e-8 of the surface unsigned, where the pseudonormal is exact.
 
+:class:`NarrowBand` follows a point set that moves a little at a time (a solve's skin) within a band of a
+surface, querying again only the points that may have come within it.
+
 :class:`HalfSpace` and :class:`Box` are the table or ground of the retargeting paper's Eq. 6, with
 gradients for the solver (Inigo Quilez's box distance).
 """
@@ -132,6 +135,49 @@ class MeshSDF:
         on_edge = (feature >= 3) & (feature < 6)
         normal[on_edge] = self._edge_normals[face[on_edge], feature[on_edge] - 3]
         return np.where(np.einsum("kj,kj->k", X - closest, normal) < 0, -1.0, 1.0)
+
+
+class NarrowBand:
+    """Signed distances within ``band`` of a surface, for a point set evaluated again and again as it moves
+    (a solve's skin): exact within the band, a positive lower bound and a zero gradient beyond it on
+    either side (as ``solid.evaluate(points, band)`` gives where it proves a point that far; a point deeper
+    inside than the band counts as beyond it too, so that what a penalty of penetration sees depends on
+    the points alone), querying only the points that may have come within the band.
+
+    A signed distance changes by at most the distance a point moves (it is 1-Lipschitz), so a point last
+    found ``|sd|`` from the surface and moved by ``m`` since is still beyond the band when
+    ``|sd| - m > band``: it gets ``|sd| - m`` without a query.
+
+    Parameters
+    ----------
+    solid : MeshSDF or any object with ``evaluate(points, band) -> (sd, gradient)``
+    band : float
+    """
+
+    def __init__(self, solid, band: float):
+        self.solid = solid
+        self.band = float(band)
+        self._points: np.ndarray | None = None
+        self._distance: np.ndarray | None = None
+
+    def evaluate(self, points) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distances (k,) and gradients (k, 3) at points (k, 3), the same k points (in the same
+        order) at each call."""
+        X = _points(points)
+        if self._points is None or self._points.shape != X.shape:
+            self._points, self._distance = X.copy(), np.full(len(X), -np.inf)
+        step = X - self._points
+        signed = self._distance - np.sqrt(np.einsum("ki,ki->k", step, step))
+        gradient = np.zeros_like(X)
+        near = np.flatnonzero(signed <= self.band)
+        if near.size:
+            sd, g = self.solid.evaluate(X[near], self.band)
+            within = sd >= -self.band
+            signed[near] = np.where(within, sd, -sd)
+            gradient[near] = np.where(within[:, None], g, 0.0)
+            self._points[near] = X[near]
+            self._distance[near] = np.abs(sd)
+        return signed, gradient
 
 
 @dataclass(frozen=True)

@@ -180,14 +180,9 @@ class SkinnedMesh:
         """Positions (k, 3), normals (k, 3) and their Jacobians (k, 3, d), (k, 3, d) at pose θ (d,)."""
         skin = self.point_skin([points])
         kin = self.rig.kinematics(theta)
-        J = skin.vertices.jacobian(kin)
         pts = skin.sets[0]
-        p, n, (inv, e1, e2) = pts.geometry(skin.vertices.positions(kin))
-        Jc = J[pts.corners]  # (k, 3 corners, 3, d)
-        dp = np.einsum("kc,kcid->kid", pts.bary, Jc)
-        de1, de2 = Jc[:, 1] - Jc[:, 0], Jc[:, 2] - Jc[:, 0]
-        du = np.cross(de1, e2[:, :, None], axis=1) + np.cross(e1[:, :, None], de2, axis=1)
-        dn = (du - n[:, :, None] * np.einsum("ki,kid->kd", n, du)[:, None, :]) * inv[:, None, None]
+        p, n, aux = pts.geometry(skin.vertices.positions(kin))
+        dp, dn = pts.jacobian(n, aux, skin.vertices.jacobian(kin, pts.rows))
         return p, n, dp, dn
 
     # ------------------------------------------------------------------ evaluators for solvers
@@ -239,9 +234,12 @@ class VertexSkin:
         X[self._static] = self.rest[self._static]
         return X
 
-    def jacobian(self, kin) -> np.ndarray:
-        """(m, 3, d) derivatives of the posed positions with respect to θ."""
-        return kin.jacobian(self.weights.toarray(), self.rest)
+    def jacobian(self, kin, rows=None) -> np.ndarray:
+        """(m, 3, d) derivatives of the posed positions with respect to θ, or (r, 3, d) of the rows ``rows``
+        (r,) of this skin's vertices."""
+        if rows is None:
+            return kin.jacobian(self.weights.toarray(), self.rest)
+        return kin.jacobian(self.weights[rows].toarray(), self.rest[rows])
 
     def vjp(self, kin, adjoint: np.ndarray) -> np.ndarray:
         """(d,) ``sum_v adjoint[v] . dposition[v]/dθ`` for an adjoint (m, 3), without the Jacobian."""
@@ -271,6 +269,9 @@ class PointSet:
         values = np.concatenate([bary, np.tile([-1.0, 1.0, 0.0], (k, 1)), np.tile([-1.0, 0.0, 1.0], (k, 1))])
         self._stack = sparse.csr_matrix((values.ravel(), (rows, cols)), shape=(3 * k, n_vertices))
         self._stack_t = sparse.csr_matrix(self._stack.T)
+        #: (r,) the vertices (rows of the skin's vertex array) the points lie on, in increasing order.
+        self.rows = np.unique(corners)
+        self._stack_rows = sparse.csr_matrix(self._stack[:, self.rows])
 
     def __len__(self) -> int:
         return len(self.bary)
@@ -285,6 +286,17 @@ class PointSet:
         norm = np.sqrt(np.einsum("ki,ki->k", u, u))
         inv = 1.0 / np.where(norm > 0, norm, np.inf)  # a degenerate posed triangle has no normal
         return p, u * inv[:, None], (inv, e1, e2)
+
+    def jacobian(self, n: np.ndarray, aux, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The derivatives (k, 3, d) of the positions and of the unit normals (``n``, ``aux`` from
+        :meth:`geometry`), from the Jacobians J (r, 3, d) of the vertices :attr:`rows`."""
+        k, d = len(self.bary), J.shape[2]
+        Y = (self._stack_rows @ J.reshape(len(J), 3 * d)).reshape(3 * k, 3, d)
+        dp, de1, de2 = Y[:k], Y[k : 2 * k], Y[2 * k :]
+        inv, e1, e2 = aux
+        du = np.cross(de1, e2[:, :, None], axis=1) + np.cross(e1[:, :, None], de2, axis=1)
+        dn = (du - n[:, :, None] * np.einsum("ki,kid->kd", n, du)[:, None, :]) * inv[:, None, None]
+        return dp, dn
 
     def adjoint(self, n: np.ndarray, aux, grad_p, grad_n) -> np.ndarray:
         """(m, 3) per-vertex adjoint of ``grad_p . dp + grad_n . dn`` (either gradient may be None)."""

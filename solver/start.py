@@ -1,0 +1,85 @@
+"""Where a solve starts when the hand must travel: the grasp a layout of contacts implies.
+
+Contact IK is a local method: from a hand far from its contacts (the wrist to move by a hand length and
+turn by half a turn, the fingers to wrap an object) it ends in a minimum on the way, which is the paper's
+own users' first complaint (Contact Edit §7: "solutions to difficult optimization problems such as those
+which involved very large wrist movement"). Their answer was to move the object and solve again; this
+module finds the start instead, in three steps repeated a few times:
+
+1. **The root.** The rigid motion that best lays the hand's contact points onto their targets and their
+   normals against the object's (each point with a second one a little along its normal, paired with
+   its target a little inside along the object's normal: the rotation is then fixed by two patches, or
+   even one), weighing every patch alike whatever its number of points (weighted Kabsch,
+   :func:`geodesics.rigid.rigid_fit`), composed with the root's present motion.
+2. **The fingers.** With the root held, a short solve of the other DOFs towards the targets, without the
+   skin kept out of the object (the finger pads would otherwise catch on it on their way).
+3. Again: the root fits the fingers as they now curl, and the fingers the root as it now stands.
+
+It starts once from the fingers as given and once from the open hand (when they differ), and keeps the
+start with the lower energy; the solve then goes on from it with every term.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from geodesics.rigid import rigid_fit
+
+#: Rounds of root fit and finger solve.
+ROUNDS = 2
+#: Evaluations of each round's finger solve.
+FINGER_EVALUATIONS = 10
+#: How far along the normals the second point of each contact lies, as a fraction of the hand's length.
+NORMAL_OFFSET = 0.05
+
+#: ``(θ (d,), DOFs (n,), evaluations) -> θ``: a solve of those DOFs without the solids' terms.
+Descend = Callable[[np.ndarray, np.ndarray, int], np.ndarray]
+#: ``θ (d,) -> energy`` with every term, reported as the solve's progress.
+Judge = Callable[[np.ndarray], float]
+
+
+def grasp_start(ik, theta: np.ndarray, index: np.ndarray, descend: Descend, judge: Judge) -> np.ndarray:
+    """(d,) the start pose of a solve of ``ik`` (a :class:`~solver.ContactIK`) over the DOFs ``index``
+    (n,) from θ (d,), found as the module docstring says; θ itself when the root is not free.
+
+    ``descend`` solves some DOFs without the solids' terms, ``judge`` gives a pose's full energy (and
+    reports it as progress); the start with the lower energy is returned.
+    """
+    rig = ik.hand.rig
+    root = index[rig.dof_bone[index] == 0]
+    if root.size == 0:
+        return theta
+    fingers = index[rig.dof_bone[index] != 0]
+    sizes = np.bincount(ik.patch_of)
+    weights = 1.0 / sizes[ik.patch_of]
+    starts = [theta]
+    opened = theta.copy()
+    opened[fingers] = rig.rest[fingers]
+    if not np.array_equal(opened, theta):
+        starts.append(rig.clip(opened))
+    best, best_energy = theta, np.inf
+    for t in starts:
+        for _ in range(ROUNDS):
+            t = _root_fit(ik, t, root, weights)
+            if fingers.size:
+                t = descend(t, fingers, FINGER_EVALUATIONS)
+        energy = judge(t)
+        if energy < best_energy:
+            best, best_energy = t, energy
+    return best
+
+
+def _root_fit(ik, theta: np.ndarray, root: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """θ with the root DOFs ``root`` moved by the rigid motion that best lays the contacts and their
+    normals onto the targets and against the object's normals (step 1 of the module docstring)."""
+    hand, rig = ik.hand, ik.hand.rig
+    p, n = hand.posed_points(theta, ik.hand_points)
+    offset = NORMAL_OFFSET * hand.length
+    source = np.concatenate([p, p + offset * n])
+    target = np.concatenate([ik.target_points, ik.target_points - offset * ik.target_normals])
+    G = rigid_fit(source, target, np.concatenate([weights, weights])) @ rig.root_transform(theta)
+    moved = theta.copy()
+    moved[root] = rig.root_dofs(G, compatible=theta[3:6])[root]
+    return rig.clip(moved)
