@@ -103,6 +103,9 @@ def test_derivatives_match_central_differences(human):
         step[j] = h
         numeric = (ik.energy(theta + step)[0] - ik.energy(theta - step)[0]) / (2 * h)
         assert abs(grad[j] - numeric) <= 1e-6 * max(1.0, abs(numeric))
+    r, J, energy, _ = ik.residuals(theta)  # the trust region's forward derivatives: the same gradient
+    assert r @ r == pytest.approx(energy, rel=1e-12)
+    np.testing.assert_allclose(2 * J.T @ r, grad, rtol=0, atol=1e-9 * np.abs(grad).max())
 
 
 def test_the_root_turns_about_the_root_controls_head():

@@ -60,11 +60,18 @@ class ControlKinematics:
     def jacobian(self, weights: np.ndarray, rest: np.ndarray) -> np.ndarray:
         """(m, 3, d) derivatives of ``Σ_s weights[v, s] S_s [rest_v; 1]`` (weights (m, s) dense, rest (m, 3))
         with respect to θ."""
-        full = np.zeros((self.n_dofs, *self.skinning.shape))
+        n_deformers = len(self.skinning)
+        full = np.zeros((n_deformers, 4, self.n_dofs, 3))  # (s, column, DOF, row)
         j, s = np.nonzero(self.owners >= 0)
-        full[self.owners[j, s], s] = self.tangents[j, s]
-        moved = np.einsum("dsij,vj->vsid", full[..., :3], rest) + full[..., 3].transpose(1, 2, 0)[None]
-        return np.einsum("vs,vsid->vid", weights, moved)
+        full[s, :, self.owners[j, s]] = self.tangents[j, s].transpose(0, 2, 1)
+        # Σ_s w[v, s] dS_s/dθ [rest_v; 1]: one product of the weighted homogeneous points (m, 4 s)
+        homogeneous = np.concatenate([rest, np.ones((len(rest), 1))], axis=1)
+        X = (weights[:, :, None] * homogeneous[:, None, :]).reshape(len(rest), 4 * n_deformers)
+        return (
+            (X @ full.reshape(4 * n_deformers, 3 * self.n_dofs))
+            .reshape(len(rest), self.n_dofs, 3)
+            .swapaxes(1, 2)
+        )
 
 
 class ControlRig(EulerDofs):

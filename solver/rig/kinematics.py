@@ -103,18 +103,21 @@ class Kinematics:
         rest (m, 3)) with respect to θ."""
         rig = self.rig
         D = rig.subtree.astype(np.float64)
-        # Blended skinning matrices of each bone's subtree, per point: (m, b, 3, 4).
-        M = np.einsum("vb,bc,bk->vck", weights, D, self.skinning.reshape(-1, 12)).reshape(
-            len(weights), -1, 3, 4
-        )
-        Y = np.einsum("vcij,vj->vci", M[..., :3], rest) + M[..., 3]
+        S = self.skinning
+        # Each point as each bone poses it, weighted, then summed over each bone's subtree: Y[v, c] is the
+        # part of point v that bone c's DOFs move (m, b, 3).
+        posed = np.einsum("bij,vj->vbi", S[:, :, :3], rest) + S[None, :, :, 3]
+        Y = ((weights[:, :, None] * posed).transpose(0, 2, 1) @ D).transpose(0, 2, 1)
         Wsub = weights @ D
         bone = rig.dof_bone
         J = np.empty((len(weights), 3, rig.n_dofs))
         J[:, :, :3] = Wsub[:, 0, None, None] * self.axes[:3].T[None]
         rot = np.flatnonzero(rig.is_rotation)
         lever = Y[:, bone[rot]] - Wsub[:, bone[rot], None] * self.origins[rot][None]
-        J[:, :, rot] = np.cross(self.axes[rot][None], lever).transpose(0, 2, 1)
+        a = self.axes[rot]
+        J[:, 0, rot] = a[:, 1] * lever[:, :, 2] - a[:, 2] * lever[:, :, 1]
+        J[:, 1, rot] = a[:, 2] * lever[:, :, 0] - a[:, 0] * lever[:, :, 2]
+        J[:, 2, rot] = a[:, 0] * lever[:, :, 1] - a[:, 1] * lever[:, :, 0]
         return J
 
 

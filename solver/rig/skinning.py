@@ -294,7 +294,7 @@ class PointSet:
         Y = (self._stack_rows @ J.reshape(len(J), 3 * d)).reshape(3 * k, 3, d)
         dp, de1, de2 = Y[:k], Y[k : 2 * k], Y[2 * k :]
         inv, e1, e2 = aux
-        du = np.cross(de1, e2[:, :, None], axis=1) + np.cross(e1[:, :, None], de2, axis=1)
+        du = _cross_columns(de1, e2) - _cross_columns(de2, e1)  # d(e1 × e2) = de1 × e2 + e1 × de2
         dn = (du - n[:, :, None] * np.einsum("ki,kid->kd", n, du)[:, None, :]) * inv[:, None, None]
         return dp, dn
 
@@ -310,6 +310,15 @@ class PointSet:
             G[k : 2 * k] = cross(e2, gu)
             G[2 * k :] = cross(gu, e1)
         return self._stack_t @ G
+
+
+def _cross_columns(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(k, 3, d) ``A[:, :, j] × b`` for each column j of A (k, 3, d) and vectors b (k, 3)."""
+    out = np.empty_like(A)
+    out[:, 0] = A[:, 1] * b[:, 2, None] - A[:, 2] * b[:, 1, None]
+    out[:, 1] = A[:, 2] * b[:, 0, None] - A[:, 0] * b[:, 2, None]
+    out[:, 2] = A[:, 0] * b[:, 1, None] - A[:, 1] * b[:, 0, None]
+    return out
 
 
 class PointSkin:
