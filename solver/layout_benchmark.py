@@ -156,17 +156,17 @@ def trial(hand_label: str, layout: Layout, seed=0) -> Trial:
         edited = turned(layout, pad, EDIT_DEGREES)
         again = _solve(edited, theta0=result.theta)
         after = judge(hand, again.theta, edited)
-        edit = Edit(pad, again, after, judge_edit(hand, verdict, after))
+        edit = Edit(pad, again, after, judge_edit(hand, verdict, after, layout.palm))
     return Trial(hand_label, layout, result, verdict, edit)
 
 
 def _describe(trial: Trial) -> str:
     """The progress line of one trial."""
-    layout, verdict, edit = trial.layout, trial.verdict, trial.edit
+    layout, verdict, edit, result = trial.layout, trial.verdict, trial.edit, trial.result
     outcome = "success" if verdict.success else "fail"
     line = (
         f"{trial.hand} {layout.name} turned {layout.angle:.0f}°, moved {1e3 * layout.shift:.0f} mm, "
-        f"{len(layout.pads)} pads: {outcome} in {trial.result.seconds:.2f} s (worst pad "
+        f"{len(layout.pads)} pads: {outcome} in {result.seconds:.2f} s ({result.status}; worst pad "
         f"{1e3 * verdict.contact.max():.1f} mm off the surface, {1e3 * verdict.reach.max():.1f} mm from its "
         f"patch; skin {1e3 * verdict.depth:.1f} mm deep)"
     )
@@ -175,7 +175,8 @@ def _describe(trial: Trial) -> str:
     outcome = "flip" if edit.change.flip else "kept"
     return line + (
         f"; {layout.pads[edit.pad]} turned {EDIT_DEGREES:.0f}°: {outcome} (palm turned "
-        f"{edit.change.turn:.1f}°, {len(edit.change.dropped)} pads dropped) in {edit.result.seconds:.2f} s"
+        f"{edit.change.turn:.1f}°, {len(edit.change.dropped)} pads dropped) in {edit.result.seconds:.2f} s "
+        f"({edit.result.status})"
     )
 
 

@@ -164,6 +164,8 @@ class Layout:
     reference : (d,) ndarray or None
         The known grip moved by G: it reaches the unslid targets (None for a hand the grip was not
         made on, see :func:`on_hand`).
+    palm : int
+        The deformer whose turn is the hand's (:func:`palm_deformer`, :func:`judge_edit`).
     """
 
     hand: SkinnedMesh
@@ -182,6 +184,7 @@ class Layout:
     pivot: np.ndarray
     bin: tuple[float, float]
     reference: np.ndarray | None
+    palm: int
 
     @property
     def angle(self) -> float:
@@ -471,6 +474,7 @@ def make_layout(grip: Grip, bin=BINS[0], seed=0, slide=SLIDE) -> Layout:
         pivot=pivot,
         bin=bin,
         reference=carried(grip.hand.rig, grip.theta, G) if isinstance(grip.hand.rig, Rig) else None,
+        palm=palm_deformer(grip.hand),
     )
 
 
@@ -522,7 +526,8 @@ def turned(layout: Layout, pad, degrees: float) -> Layout:
 def on_hand(layout: Layout, hand: SkinnedMesh) -> Layout:
     """The layout for another skin of the same mesh (a Rigify rig skinning the procedural hand): its rest
     mesh must be the layout hand's moved rigidly (found by a least-squares fit, Kabsch), and the object,
-    targets and motion move with it. The reference is dropped (the grip was made on the other rig).
+    targets and motion move with it. The reference is dropped (the grip was made on the other rig); the
+    palm is the new skin's deformer that weighs most on the layout hand's palm vertices.
 
     Raises
     ------
@@ -551,6 +556,7 @@ def on_hand(layout: Layout, hand: SkinnedMesh) -> Layout:
         motion=M @ layout.motion @ np.linalg.inv(M),
         pivot=M[:3, :3] @ layout.pivot + M[:3, 3],
         reference=None,
+        palm=palm_deformer(hand, palm_vertices(layout.hand)),
     )
 
 
@@ -583,16 +589,26 @@ def judge(hand: SkinnedMesh, theta, layout: Layout) -> Verdict:
     return Verdict(theta, contact, reach, depth, touching, success)
 
 
-def palm_deformer(hand: SkinnedMesh) -> int:
-    """The deformer (column of ``hand.deformer_weights``) that carries the most skin: the palm of a
-    procedural hand (its ``hand`` bone), whose turn is the hand's."""
-    return int(np.argmax(np.asarray(hand.deformer_weights.sum(axis=0)).ravel()))
+def palm_vertices(hand: SkinnedMesh) -> np.ndarray:
+    """(m,) the vertices skinned mostly to the deform bone that carries the most skin: a procedural
+    hand's palm (its ``hand`` bone)."""
+    W = hand.weights.tocsr()
+    heaviest = int(np.argmax(np.asarray(W.sum(axis=0)).ravel()))
+    return np.flatnonzero(np.asarray(W.argmax(axis=1)).ravel() == heaviest)
+
+
+def palm_deformer(hand: SkinnedMesh, vertices=None) -> int:
+    """The deformer (column of ``hand.deformer_weights``) that carries the most weight over the palm's
+    ``vertices`` (m,) (default :func:`palm_vertices`): a procedural hand's ``hand`` bone; on a Rigify
+    skin of its mesh, given its palm's vertices, the palm's deform bone that weighs most there."""
+    rows = palm_vertices(hand) if vertices is None else np.asarray(vertices, dtype=np.int64)
+    return int(np.argmax(np.asarray(hand.deformer_weights[rows].sum(axis=0)).ravel()))
 
 
 def hand_turn(hand: SkinnedMesh, theta_a, theta_b, palm: int | None = None) -> float:
     """The angle (degrees, in [0, 180]) between the palm's orientations at poses θa and θb (d,): the
-    rotation of its skinning matrix at one relative to the other. ``palm`` is a deformer index (default
-    :func:`palm_deformer`)."""
+    rotation of its deformer's skinning matrix at one relative to the other. ``palm`` is a deformer index
+    (default :func:`palm_deformer`; a layout's is :attr:`Layout.palm`)."""
     palm = palm_deformer(hand) if palm is None else int(palm)
     rig = hand.rig
     Ra = rig.kinematics(rig.check_theta(theta_a), derivatives=False).skinning[palm, :, :3]
@@ -600,10 +616,10 @@ def hand_turn(hand: SkinnedMesh, theta_a, theta_b, palm: int | None = None) -> f
     return float(np.degrees(matrix_to_axis_angle(Ra.T @ Rb)[0]))
 
 
-def judge_edit(hand: SkinnedMesh, before: Verdict, after: Verdict) -> EditVerdict:
-    """Whether re-solving after an edit flipped the hand: the palm turned by more than
-    :data:`TURN_LIMIT` from ``before.theta`` to ``after.theta``, or a pad that touched before (any pad,
-    the edited one too) no longer touches."""
-    turn = hand_turn(hand, before.theta, after.theta)
+def judge_edit(hand: SkinnedMesh, before: Verdict, after: Verdict, palm: int | None = None) -> EditVerdict:
+    """Whether re-solving after an edit flipped the hand: the palm (deformer ``palm``, as in
+    :func:`hand_turn`) turned by more than :data:`TURN_LIMIT` from ``before.theta`` to ``after.theta``, or a
+    pad that touched before (any pad, the edited one too) no longer touches."""
+    turn = hand_turn(hand, before.theta, after.theta, palm)
     dropped = tuple(int(p) for p in np.flatnonzero(before.touching & ~after.touching))
     return EditVerdict(turn, dropped, bool(turn > TURN_LIMIT or dropped))

@@ -135,7 +135,8 @@ def test_hand_turn_and_edit_verdict(human, cylinder):
     moved = L.carried(human.rig, theta, G)
     assert np.allclose(human.rig.pose_matrices(moved)[0], G @ human.rig.pose_matrices(theta)[0], atol=1e-12)
     assert np.array_equal(moved[6:], theta[6:])
-    assert np.isclose(L.hand_turn(human, theta, moved), 40.0, atol=1e-9)
+    assert human.rig.deform_bones[layout.palm] == "hand" == human.rig.deform_bones[L.palm_deformer(human)]
+    assert np.isclose(L.hand_turn(human, theta, moved, layout.palm), 40.0, atol=1e-9)
     assert np.isclose(L.hand_turn(human, moved, moved), 0.0, atol=1e-6)
     before = L.judge(human, theta, layout)
     assert before.touching.all()
@@ -158,7 +159,7 @@ def test_on_hand_moves_the_layout_with_the_skin(human, cylinder):
     skin = SkinnedMesh(TriMesh(human.mesh.vertices @ M[:3, :3].T + M[:3, 3], human.mesh.faces), human.rig,
                        human.weights)  # fmt: skip
     there = L.on_hand(layout, skin)
-    assert there.hand is skin and there.reference is None
+    assert there.hand is skin and there.reference is None and there.palm == layout.palm
     assert np.allclose(there.positions, layout.positions @ M[:3, :3].T + M[:3, 3], atol=1e-12)
     assert np.allclose(there.normals, layout.normals @ M[:3, :3].T, atol=1e-12)
     assert np.isclose(there.angle, layout.angle) and np.isclose(there.shift, layout.shift)
