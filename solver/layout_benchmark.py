@@ -1,9 +1,9 @@
 """The benchmark a person's layouts drive (issue 41, item 5): does a solve from rest find the grip?
 
-For every hand, every object of :data:`solver.layouts.OBJECTS` whose known grip has pads, and every bin
-of the object's turn (:data:`solver.layouts.BINS`), ``per_bin`` seeded layouts (:func:`solver.layouts.
-make_layout`: pads of a grip that exists, targets slid a few millimetres, the object carried away) are
-solved from the rest pose exactly as a user's script solves them::
+For every hand, every object of :data:`solver.layouts.OBJECTS` whose known grip has two pads or more,
+and every bin of the object's turn (:data:`solver.layouts.BINS`), ``per_bin`` seeded layouts
+(:func:`solver.layouts.make_layout`: pads of a grip that exists, targets slid a few millimetres, the
+object carried away) are solved from the rest pose exactly as a user's script solves them::
 
     ContactIK(hand, layout.points, layout.positions, layout.normals, keep_out=layout.sdf).solve()
 
@@ -19,8 +19,10 @@ Layouts where no pad touches after the first solve have nothing to turn and are 
 :func:`format_table` prints them. Rows are not :class:`geodesics.benchmark.Row`, which holds one timing
 beside a peer's: these are rates and counts per bin (success, flips) with the times of many solves, and
 a column each lets a table before a change be read against one after it. ``progress`` gets a line per
-layout. A layout's solve takes seconds to tens of seconds with today's solve, so :data:`PER_BIN` is one
-layout per object and bin; :data:`QUICK` is the smallest run, for tests.
+layout. A Rigify hand (any skin of a procedural hand's mesh) joins the run through ``others``: it gets
+that hand's layouts (:func:`solver.layouts.on_hand`). :data:`PER_BIN` keeps the default run to one
+layout per object and bin, which a slow solve can afford; ``per_bin`` refines the rates once solves are
+fast. :data:`QUICK` is the smallest run, for tests.
 """
 
 from __future__ import annotations
@@ -49,8 +51,8 @@ from .layouts import (
 )
 from .rig import SkinnedMesh
 
-#: Layouts per object and bin by default: what a run over the three procedural hands can afford with a
-#: solve of tens of seconds (about 33 layouts, each solved twice).
+#: Layouts per object and bin by default: 36 layouts over the three procedural hands (four objects, three
+#: bins), each solved twice (once more for its edit).
 PER_BIN = 1
 #: The hands :func:`run` poses by default (the tentacle has no palm to grip with).
 KINDS = ("human", "alien", "witch")

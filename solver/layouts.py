@@ -22,9 +22,9 @@ module makes such layouts with a known answer:
    the shortest geodesic) to each of the pad's targets, which then move along the straightest geodesic
    of that vector (:func:`geodesics.exp_map`). On a developable surface the pad moves rigidly.
 4. **The object carried away**: a seeded rigid motion G, a turn by an angle drawn in a bin of
-   :data:`BINS` about a random axis through the grip's contact centroid, then a shift of that centroid by up
-   to the hand's length, applied to the object (and so to its targets and normals). The hand stays at
-   rest: a solve from rest must travel and turn the wrist. The known grip moved by G
+   :data:`BINS` about a random axis through the grip's contact centroid, then a shift of that centroid
+   by up to the hand's length, applied to the object (and so to its targets and normals). The hand stays
+   at rest: a solve from rest must travel and turn the wrist. The known grip moved by G
    (:attr:`Layout.reference`: its root moved rigidly, :func:`solver.retarget.frames.root_from_transform`)
    is a pose that reaches the unslid targets.
 
@@ -384,23 +384,15 @@ def _moved(mesh: TriMesh, G: np.ndarray) -> TriMesh:
     return TriMesh(mesh.vertices @ G[:3, :3].T + G[:3, 3], mesh.faces)
 
 
-def _check_bin(bin) -> tuple[float, float]:
+def _range(value, what: str, upper: float) -> tuple[float, float]:
+    """(low, high) from two numbers with ``0 <= low <= high <= upper`` (finite); SolverError names
+    ``what`` otherwise."""
     try:
-        lo, hi = (float(x) for x in bin)
+        lo, hi = (float(x) for x in value)
     except (TypeError, ValueError):
-        raise SolverError(f"a bin is two angles in degrees (low, high), got {bin!r}") from None
-    if not (0.0 <= lo <= hi <= 180.0):
-        raise SolverError(f"a bin's angles must satisfy 0 <= low <= high <= 180 degrees, got {bin!r}")
-    return lo, hi
-
-
-def _check_slide(slide) -> tuple[float, float]:
-    try:
-        lo, hi = (float(x) for x in slide)
-    except (TypeError, ValueError):
-        raise SolverError(f"slide is two lengths (shortest, longest), got {slide!r}") from None
-    if not (0.0 <= lo <= hi < np.inf):
-        raise SolverError(f"slide lengths must satisfy 0 <= shortest <= longest, got {slide!r}")
+        raise SolverError(f"{what} is two numbers (low, high), got {value!r}") from None
+    if not (0.0 <= lo <= hi <= upper and np.isfinite(hi)):
+        raise SolverError(f"{what} must satisfy 0 <= low <= high <= {upper:g}, got {value!r}")
     return lo, hi
 
 
@@ -448,7 +440,7 @@ def make_layout(grip: Grip, bin=BINS[0], seed=0, slide=SLIDE) -> Layout:
             f"the {grip.hand.kind} hand's grip of the {grip.name} has {len(grip.pads)} pad(s); a layout "
             f"needs {MIN_PADS}"
         )
-    bin, slide = _check_bin(bin), _check_slide(slide)
+    bin, slide = _range(bin, "a bin of turn (degrees)", 180.0), _range(slide, "the slide (metres)", np.inf)
     slide_rng, motion_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
     targets, centres = _closest_targets(grip)
     pivot = targets.positions(grip.object).mean(axis=0)
