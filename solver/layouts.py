@@ -25,7 +25,7 @@ module makes such layouts with a known answer:
    :data:`BINS` about a random axis through the grip's contact centroid, then a shift of that centroid
    by up to the hand's length, applied to the object (and so to its targets and normals). The hand stays
    at rest: a solve from rest must travel and turn the wrist. The known grip moved by G
-   (:attr:`Layout.reference`: its root moved rigidly, :func:`solver.retarget.frames.root_from_transform`)
+   (:attr:`Layout.reference`: its root moved rigidly, :func:`carried`)
    is a pose that reaches the unslid targets.
 
 :func:`turned` is the edit a person makes next: one pad's targets turned on the surface about its
@@ -51,8 +51,7 @@ from . import objects
 from .errors import SolverError
 from .grasp import grasp, in_palm
 from .hands import Hand
-from .retarget.frames import root_from_transform
-from .rig import Rig, SkinnedMesh
+from .rig import RigLike, SkinnedMesh
 from .rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from .sdf import MeshSDF
 
@@ -396,23 +395,12 @@ def _range(value, what: str, upper: float) -> tuple[float, float]:
     return lo, hi
 
 
-def carried(rig: Rig, theta, G) -> np.ndarray:
-    """(d,) the pose θ (d,) with the whole hand carried by the rigid transform G (4, 4): the root's pose
-    matrix P becomes ``G @ P`` (:func:`solver.retarget.frames.root_from_transform`), the joints kept.
-
-    Raises
-    ------
-    SolverError
-        For a rig whose root is not a located, Euler-rotated bone (a :class:`~solver.Rig`'s is).
-    """
-    if not isinstance(rig, Rig):
-        raise SolverError(
-            f"carrying a pose needs a solver.Rig (a root bone with 6 DOFs), got {type(rig).__name__}"
-        )
+def carried(rig: RigLike, theta, G) -> np.ndarray:
+    """(d,) the pose θ (d,) with the whole hand carried by the rigid transform G (4, 4): the root's rigid
+    motion becomes ``G`` after θ's (:meth:`~solver.rig.RigLike.root_dofs`), the joints kept."""
     theta = rig.check_theta(theta)
-    root = rig.pose_matrices(theta)[0]
     out = theta.copy()
-    out[:6] = root_from_transform(rig, np.asarray(G) @ root @ np.linalg.inv(rig.matrix_local[0]), theta[3:6])
+    out[:6] = rig.root_dofs(np.asarray(G) @ rig.root_transform(theta), compatible=theta[3:6])
     return out
 
 
@@ -465,7 +453,7 @@ def make_layout(grip: Grip, bin=BINS[0], seed=0, slide=SLIDE) -> Layout:
         motion=G,
         pivot=pivot,
         bin=bin,
-        reference=carried(grip.hand.rig, grip.theta, G) if isinstance(grip.hand.rig, Rig) else None,
+        reference=carried(grip.hand.rig, grip.theta, G),
         palm=palm_deformer(grip.hand),
     )
 
