@@ -329,7 +329,7 @@ _GRAB_FPS, _CUTOFF = 120.0, 0.01
 
 
 def _import_grab(args: argparse.Namespace) -> int:
-    from geodesics.meshio import load_mesh
+    from geodesics import load_mesh
     from solver.retarget import grab, pair_motion
 
     _output_file(args.output)

@@ -12,7 +12,7 @@ import math
 
 import bpy
 
-from tangible.puppet import CHANNELS
+from tangible import CHANNELS
 
 _CHANNEL_WORDS = {
     "bend_a": ("First hinge", "The first hinge angle"),

@@ -26,7 +26,7 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from geodesics.benchmark import WARMUP, Row
+from geodesics import benchmark
 from solver.hands import make_hand
 
 from . import assets, demo, posing, registration, scene_retarget, store
@@ -45,7 +45,7 @@ PAINTED = 0.012
 def _times(call: Callable[[], object], repeat: int) -> tuple[float, float]:
     """Median and longest of ``repeat`` timed runs, after :data:`WARMUP` untimed ones. A ``call`` that
     returns a float says how many of its seconds were spent off the main thread (:func:`_worker_time`)."""
-    for _ in range(WARMUP):
+    for _ in range(benchmark.WARMUP):
         call()
     times = []
     for _ in range(repeat):
@@ -110,13 +110,13 @@ def _first_pose(scene, repeat: int) -> tuple[float, float]:
         problem.apply(problem.theta0)
         return took
 
-    for _ in range(WARMUP):
+    for _ in range(benchmark.WARMUP):
         once()
     times = [once() for _ in range(repeat)]
     return float(np.median(times)), float(max(times))
 
 
-def run(repeat: int = 7, progress: Callable[[str], None] | None = None) -> list[Row]:
+def run(repeat: int = 7, progress: Callable[[str], None] | None = None) -> list[benchmark.Row]:
     """The benchmark's rows, one per operator: the median main-thread time, the longest in the note."""
     say = progress or (lambda _message: None)
     say("building the demo scene (hand, mug, six paired pads, solved)")
@@ -165,13 +165,13 @@ def run(repeat: int = 7, progress: Callable[[str], None] | None = None) -> list[
     for label, call in calls:
         say(label)
         median, longest = _times(call, repeat)
-        rows.append(Row(label, median, GOAL, "goal", f"longest {1e3 * longest:.1f} ms"))
+        rows.append(benchmark.Row(label, median, GOAL, "goal", f"longest {1e3 * longest:.1f} ms"))
     say("solve: first pose")
     scene.frame_set(demo.OPEN_FRAME)  # the demo's open hand, keyed before its solve
     median, longest = _first_pose(scene, repeat)
     tick = 1.0 / REDRAW_RATE
     rows.append(
-        Row(
+        benchmark.Row(
             "solve from the open hand: plan, first better pose applied",
             median,
             GOAL,
@@ -182,21 +182,23 @@ def run(repeat: int = 7, progress: Callable[[str], None] | None = None) -> list[
     say("solve: plan (main thread)")
     median, longest = _times(lambda: posing.problem(scene), repeat)
     rows.append(
-        Row("solve: plan (the main thread's part)", median, GOAL, "goal", f"longest {1e3 * longest:.1f} ms")
+        benchmark.Row(
+            "solve: plan (the main thread's part)", median, GOAL, "goal", f"longest {1e3 * longest:.1f} ms"
+        )
     )
     say("retarget: invoke, reading frames")
     rows += _retarget(scene, hand, mug, repeat)
     return rows
 
 
-def _retarget(scene, hand, mug, repeat: int) -> list[Row]:
+def _retarget(scene, hand, mug, repeat: int) -> list[benchmark.Row]:
     """Retarget's main-thread parts: the start-up ticks making the procedural hands it checks against,
     invoke's (check the inputs, read the rigs) and a frame read on a timer tick."""
     alien, _ = assets.hand_objects(make_hand("alien"), "Alien", scene.collection)
     frames = (scene.frame_start, scene.frame_end)
     ticks = _timer_ticks(registration.make_procedural_topologies)
     rows = [
-        Row(
+        benchmark.Row(
             "start-up: make the procedural hands (a timer tick each)",
             float(np.median(ticks)),
             GOAL,
@@ -214,7 +216,7 @@ def _retarget(scene, hand, mug, repeat: int) -> list[Row]:
         first = time.perf_counter() - began
         median, longest = _times(prepare, repeat)
         rows.append(
-            Row(
+            benchmark.Row(
                 "retarget: invoke (check the inputs, read the rigs)",
                 median,
                 GOAL,
@@ -223,9 +225,9 @@ def _retarget(scene, hand, mug, repeat: int) -> list[Row]:
             )
         )
         try:
-            median, longest = _times(reader.read_next, min(repeat, reader.n_frames - WARMUP))
+            median, longest = _times(reader.read_next, min(repeat, reader.n_frames - benchmark.WARMUP))
         finally:
             reader.restore()
     note = f"longest {1e3 * longest:.1f} ms; a tick reads frames for {1e3 * READ_BUDGET:.0f} ms"
-    rows.append(Row("retarget: read a frame (on a timer tick)", median, GOAL, "goal", note))
+    rows.append(benchmark.Row("retarget: read a frame (on a timer tick)", median, GOAL, "goal", note))
     return rows

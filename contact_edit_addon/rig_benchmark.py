@@ -15,8 +15,7 @@ from collections.abc import Callable
 import bpy
 import numpy as np
 
-from geodesics import SurfacePoints
-from geodesics.benchmark import Row
+from geodesics import SurfacePoints, benchmark
 from solver import ContactIK, SkinnedMesh, hands
 
 from . import bridge, rigify
@@ -63,7 +62,7 @@ def _solves(
     return float(np.median(seconds)), int(np.median(evaluations)), worst
 
 
-def run(repeat: int = 5, progress: Callable[[str], None] | None = None) -> list[Row]:
+def run(repeat: int = 5, progress: Callable[[str], None] | None = None) -> list[benchmark.Row]:
     """The benchmark's rows: per Rigify arm mode, energy evaluations and solves beside the procedural hand."""
     say = progress or (lambda _message: None)
     say("building the Rigify human with the procedural hand (Rigify's Generate Rig takes a while)")
@@ -98,11 +97,11 @@ def run(repeat: int = 5, progress: Callable[[str], None] | None = None) -> list[
         peer_name = f"procedural human hand ({kit.rig.n_dofs} DOF)"
         solve, evaluations, worst = _solves(posed.skin, points, rig.start, repeat)
         rows += [
-            Row(
+            benchmark.Row(
                 f"{what}: energy and gradient", _energy_time(ik, rig.start, True), peer["gradient"], peer_name
             ),
-            Row(f"{what}: energy", _energy_time(ik, rig.start, False), peer["energy"], peer_name),
-            Row(
+            benchmark.Row(f"{what}: energy", _energy_time(ik, rig.start, False), peer["energy"], peer_name),
+            benchmark.Row(
                 f"{what}: solve from the pose read",
                 solve,
                 peer["solve"][0],

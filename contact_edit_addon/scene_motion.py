@@ -21,8 +21,7 @@ from collections.abc import Callable
 import bpy
 import numpy as np
 
-from geodesics import MeshError, TriMesh
-from geodesics.errors import describe_ids
+from geodesics import MeshError, TriMesh, describe_ids
 from solver.retarget.detection import with_contacts
 from solver.retarget.motion import Motion, MotionError
 

@@ -16,8 +16,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from tangible import Kit, reduce
-from tangible.assembly import instructions_text
+from tangible import Kit, instructions_text, reduce
 
 from .. import store
 from ..bridge import BridgeError

@@ -18,8 +18,16 @@ import bpy
 import numpy as np
 from bpy_extras import view3d_utils
 
-from geodesics import ContactError, ContactPatch, SurfacePoints, farthest_pair_axis, medial_axis
-from geodesics.brush import Dab, erase, paint
+from geodesics import (
+    ContactError,
+    ContactPatch,
+    Dab,
+    SurfacePoints,
+    erase,
+    farthest_pair_axis,
+    medial_axis,
+    paint,
+)
 
 from .. import bridge, overlays, store
 from .background import Background, Plan
