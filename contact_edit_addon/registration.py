@@ -19,19 +19,16 @@ import bpy
 
 from solver.retarget.annotate import make_next_procedural_topology
 
-from . import (
-    assets,
-    device_panel,
-    device_properties,
-    device_session,
-    keymaps,
-    operators,
-    overlays,
-    panels,
-    properties,
-    retarget_properties,
-)
+from . import operators, properties
+from .assets import operators as add_menu
+from .device import operators as device_operators
+from .device import panel as device_panel
+from .device import properties as device_properties
+from .device import session as device_session
 from .preferences import CONTACT_EDIT_AP_preferences
+from .retarget import operators as retarget_operators
+from .retarget import properties as retarget_properties
+from .ui import keymaps, overlays, panels
 
 #: Each class after those it refers to: property groups before the groups and operators that hold them,
 #: a sub-panel after its parent.
@@ -41,13 +38,15 @@ classes = (
     *device_properties.classes,
     *retarget_properties.classes,
     *operators.classes,
-    *assets.classes,
+    *retarget_operators.classes,
+    *device_operators.classes,
+    *add_menu.classes,
     *panels.classes,
     *device_panel.classes,
 )
 #: What else the add-on adds to Blender (pointer properties on its types, handlers, menus, draw callbacks,
 #: hotkeys), once the classes are registered; taken away in the reverse order, before them.
-modules = (properties, device_properties, retarget_properties, device_session, assets, overlays, keymaps)
+modules = (properties, device_properties, retarget_properties, device_session, add_menu, overlays, keymaps)
 
 register_classes, unregister_classes = bpy.utils.register_classes_factory(classes)
 

@@ -29,7 +29,8 @@ from geodesics import (
     paint,
 )
 
-from .. import bridge, overlays, store
+from .. import bridge, store
+from ..ui import overlays
 from .background import Background, Plan
 from .common import NAVIGATION, HotkeyTool, guarded, mesh_object, need_mesh, unique_name
 

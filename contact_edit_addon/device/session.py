@@ -1,6 +1,6 @@
 """A live puppet device driving one armature: the scene's bindings as a :class:`tangible.Puppet`, the
 port or the built-in simulator, and :class:`Session`, which applies the device's latest state on each tick.
-The operators that start, tick and stop sessions are in :mod:`contact_edit_addon.operators.device`.
+The operators that start, tick and stop sessions are in :mod:`.operators`.
 
 Sessions are kept here (``sessions``) per armature *name* (never a Blender reference, so undo cannot leave
 them dangling). A session owns the :class:`tangible.SerialReader` (and the :class:`tangible.Simulator`
@@ -42,8 +42,8 @@ from tangible import (
     protocol,
 )
 
-from .bridge import BridgeError
-from .bridge.device import (
+from ..bridge import BridgeError
+from .bridge import (
     ArmatureRig,
     ScalarTarget,
     action_sample_poses,
@@ -51,7 +51,7 @@ from .bridge.device import (
     scalar_target,
     write_rotations,
 )
-from .device_properties import IDENTITY
+from .properties import IDENTITY
 
 #: Longest wait, when connecting, for the device to show every bound joint (the firmware's records climb
 #: one piece per poll: a few hundred ms for 25 joints).

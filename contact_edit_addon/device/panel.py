@@ -5,8 +5,8 @@ import bpy
 
 from tangible import DeviceState, colour_name, list_ports
 
-from .device_session import device_armature, live_session
-from .panels import SubPanel
+from ..ui.panels import SubPanel
+from .session import device_armature, live_session
 
 
 def joint_label(state: DeviceState, joint: int) -> str:

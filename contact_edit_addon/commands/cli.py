@@ -282,8 +282,8 @@ def _demo(args: argparse.Namespace) -> int:
 def _pose(args: argparse.Namespace) -> int:
     if _blender() is None:
         return 2
+    from ..bridge import BridgeError
     from . import batch
-    from .bridge import BridgeError
 
     with _StageBars(capped=True) as bars:
         try:
@@ -637,7 +637,7 @@ _INPUT_ERRORS = (
     ("solver.retarget.motion", "MotionError"),
     ("tangible.errors", "TangibleError"),
     ("contact_edit_addon.bridge.errors", "BridgeError"),
-    ("contact_edit_addon.build", "BuildError"),
+    ("contact_edit_addon.commands.build", "BuildError"),
 )
 
 

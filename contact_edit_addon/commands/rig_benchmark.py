@@ -1,6 +1,6 @@
 """``contact-edit bench rigs``: contact IK on a Rigify hand beside the same contacts on the procedural human
-hand, whose mesh the Rigify hand skins (:mod:`.rigify`): the cost of posing a production rig through its
-controls, constraints and B-Bones instead of a plain tree of bones.
+hand, whose mesh the Rigify hand skins (:mod:`..assets.rigify`): the cost of posing a production rig through
+its controls, constraints and B-Bones instead of a plain tree of bones.
 
 Both hands carry the same palm-side contact points of one mesh. Each solve starts from the pose the hand
 was read in and recovers a seeded random pose of its DOFs (the fingers turned by up to 0.45 rad about
@@ -18,7 +18,8 @@ import numpy as np
 from geodesics import SurfacePoints, benchmark
 from solver import ContactIK, SkinnedMesh, hands
 
-from . import bridge, rigify
+from .. import bridge
+from ..assets import rigify
 
 #: Palm-side points per patch (16 patches: about 1,900 contacts, the paper's contact count).
 POINTS_PER_PATCH = 120

@@ -5,14 +5,14 @@ on the README demo's scene (the procedural hand grasping the mug, its six pads p
 Edits run in ``execute``: the whole call blocks. (The mirror operators need a mirror-symmetric hand,
 which the demo's is not; they are not timed here.) Painting and the Axis tool
 run their slow part (the default axis, the parameterization) in a worker thread when started from the
-window (:mod:`.operators.background`), so the main thread holds only the rest: that is the call's time
+window (:mod:`..operators.background`), so the main thread holds only the rest: that is the call's time
 less the work's. A solve plans on the main thread (reading the rig, the contacts and the object), then
 solves in a thread; its first pose is drawn once the first evaluation is done and the pose applied,
-at the next redraw tick (:data:`.operators.solve.REDRAW_RATE`). Retarget (the demo's motion onto the
+at the next redraw tick (:data:`..operators.solve.REDRAW_RATE`). Retarget (the demo's motion onto the
 alien hand) checks its inputs and reads the rigs in ``invoke``, then reads frames on timer ticks of
-:data:`.operators.retarget.READ_BUDGET` each; the rest runs in a child process. Its check compares the
+:data:`..retarget.operators.READ_BUDGET` each; the rest runs in a child process. Its check compares the
 hands with the procedural ones, which timer ticks after start-up make, one per tick
-(:func:`.registration.make_procedural_topologies`); here they run, timed, before the first Retarget.
+(:func:`..registration.make_procedural_topologies`); here they run, timed, before the first Retarget.
 """
 
 from __future__ import annotations
@@ -29,10 +29,12 @@ import numpy as np
 from geodesics import benchmark
 from solver.hands import make_hand
 
-from . import assets, demo, posing, registration, scene_retarget, store
-from .operators import background
-from .operators.retarget import READ_BUDGET
-from .operators.solve import REDRAW_RATE
+from .. import assets, posing, registration, store
+from ..operators import background
+from ..operators.solve import REDRAW_RATE
+from ..retarget import scene as scene_retarget
+from ..retarget.operators import READ_BUDGET
+from . import demo
 
 #: What a user waits at most for any operator of ours (issue 15).
 GOAL = 0.1
@@ -67,7 +69,7 @@ def _timer_ticks(timer: Callable[[], float | None]) -> list[float]:
 
 
 def _worker_time(call: Callable[[], object]) -> float:
-    """Run an operator ``call`` that plans a :class:`~.operators.background.Plan`, as ``execute`` does,
+    """Run an operator ``call`` that plans a :class:`~..operators.background.Plan`, as ``execute`` does,
     and return the seconds its ``work`` took (which runs in a worker thread from the window)."""
     spent = []
     now = background.Background.now
