@@ -1,16 +1,14 @@
 """Registering and unregistering everything, in dependency order (and the reverse).
 
-Once registered, the objects Python tracks for its cycle collector (about 110,000 in Blender 5.0 with the
-add-on loaded: Blender's, NumPy's, SciPy's and our modules, functions and classes, which live as long as
-the session) are frozen out of it (:func:`gc.freeze`). Otherwise every full collection walks them all,
-25-50 ms that fall inside whatever runs then: measured with ``contact-edit bench operators``, the longest
-of nine runs of each tool was 50-60 ms above its median (a solve's first pose 119 ms against a median of
-67 ms); frozen, a full collection takes under a millisecond. Freezing changes nothing else: reference
-counting still frees those objects, and only garbage cycles among them (a few, once) are never collected.
+Once registered, the objects Python tracks for its cycle collector (Blender's, NumPy's, SciPy's and our
+modules, functions and classes, which live as long as the session) are frozen out of it
+(:func:`gc.freeze`). Otherwise every full collection walks them all, and the pause falls inside whatever
+runs then: a tool's response, a solve's first pose (``contact-edit bench operators`` shows the longest run
+of each tool beside its median). Freezing changes nothing else: reference counting still frees those
+objects, and only garbage cycles among them (a few, once) are never collected.
 
 After start-up, timer ticks make the procedural hands that Retarget checks its hands against, one per
-tick (20-40 ms each): its first check of a session held Blender for 113 ms, 102 of them making all four
-(``contact-edit bench operators``).
+tick, so that the first Retarget of a session need not make them all while Blender waits.
 """
 
 import gc
