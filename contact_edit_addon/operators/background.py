@@ -139,7 +139,8 @@ class Background:
     Its planning step returns a :class:`Plan`, or the operator's status when nothing is left to do (an
     error reported, a quick change made). ``execute`` hands it to :meth:`now`, ``invoke`` (or the
     ``modal`` that ends a stroke) to :meth:`in_background`; ``modal`` hands its events to
-    :meth:`modal_background` while :meth:`waiting`.
+    :meth:`modal_background` while :meth:`waiting`. The mixin's own state and helpers are named
+    ``_job…`` (and ``_show_wait``, ``_end_wait``), so that they never meet an operator's.
     """
 
     def now(self, context, plan: Plan | set) -> set:
@@ -155,8 +156,8 @@ class Background:
         if isinstance(plan, set) or context.window is None or context.area is None:
             return self.now(context, plan)
         self._job = Job(plan.work, plan.thread or f"contact-edit: {plan.label}")
-        self._plan, self._began, self._shown = plan, time.monotonic(), 0
-        self._started_from = [(obj, obj.contact_edit.layer, store.text(obj)) for obj in plan.watched]
+        self._job_plan, self._job_began, self._job_shown = plan, time.monotonic(), 0
+        self._job_started_from = [(obj, obj.contact_edit.layer, store.text(obj)) for obj in plan.watched]
         wm, live = context.window_manager, plan.live
         self._job_timer = wm.event_timer_add(
             POLL_INTERVAL if live is None else live.interval, window=context.window
@@ -178,15 +179,15 @@ class Background:
         """Esc stops (live work with what it found, other work with nothing changed); right-click stops
         live work and puts back what it started from; when the worker is done, its result is committed;
         every other event goes on to Blender (the user keeps working)."""
-        live, pressed = self._plan.live, event.value == "PRESS"
+        live, pressed = self._job_plan.live, event.value == "PRESS"
         if event.type == "ESC" and pressed:
             if live is None:
                 self._end_wait(context)
-                self.report({"INFO"}, f"Stopped {self._doing()}; nothing changed")
+                self.report({"INFO"}, f"Stopped {self._job_doing()}; nothing changed")
                 return {"CANCELLED"}
             live.feed.stop()
             self._job.join()
-            return self._finish(context)
+            return self._job_finish(context)
         if event.type == "RIGHTMOUSE" and pressed and live is not None:
             live.feed.stop()
             self._job.join()
@@ -194,32 +195,33 @@ class Background:
             return live.restore(context)
         if event.type == "TIMER":
             if self._job.done:
-                return self._finish(context)
+                return self._job_finish(context)
             self._show_wait(context)
         return {"PASS_THROUGH"}
 
-    def _finish(self, context) -> set:
+    def _job_finish(self, context) -> set:
         """The work has ended: its result committed, unless the contacts it started from changed."""
-        job, live = self._end_wait(context), self._plan.live
+        job, live = self._end_wait(context), self._job_plan.live
         if live is not None and job.error is not None:
             return live.failed(context, job.error)
-        changed = self._changed()
+        changed = self._job_changed()
         if changed:  # a warning: an error's popup would land wherever the user is working now
             self.report(
                 {"WARNING"},
-                f"The contacts of {changed} changed while {self._doing()}; nothing was stored: do it again",
+                f"The contacts of {changed} changed while {self._job_doing()}; nothing was stored: do it "
+                "again",
             )
             return {"CANCELLED"}
-        return self._plan.commit(context, job.result())
+        return self._job_plan.commit(context, job.result())
 
-    def _doing(self) -> str:
-        label = self._plan.label
+    def _job_doing(self) -> str:
+        label = self._job_plan.label
         return label[:1].lower() + label[1:]
 
-    def _changed(self) -> str:
+    def _job_changed(self) -> str:
         """The watched objects whose contacts are not what the work started from (or that are gone)."""
         names = []
-        for obj, layer, data in self._started_from:
+        for obj, layer, data in self._job_started_from:
             try:
                 if store.text(obj, layer) != data:
                     names.append(f"'{obj.name}'")
@@ -230,15 +232,15 @@ class Background:
     def _show_wait(self, context) -> None:
         """The header while the work runs: for how long so far, or, for live work, its newest report
         (shown by :attr:`Live.show`) and the steps in Blender's progress indicator."""
-        live = self._plan.live
+        live = self._job_plan.live
         if live is None:
-            seconds = time.monotonic() - self._began
-            self._job_area.header_text_set(f"{self._plan.label}… {seconds:.1f} s · {ESC_DROPS}")
+            seconds = time.monotonic() - self._job_began
+            self._job_area.header_text_set(f"{self._job_plan.label}… {seconds:.1f} s · {ESC_DROPS}")
             return
         latest, count = live.feed.latest, live.feed.count
-        if latest is None or count == self._shown:
+        if latest is None or count == self._job_shown:
             return
-        self._shown = count
+        self._job_shown = count
         text = live.show(context, latest, count)
         context.window_manager.progress_update(count)
         self._job_area.header_text_set(f"{text} · {live.keys}")
@@ -247,7 +249,7 @@ class Background:
         job, self._job = self._job, None
         wm = context.window_manager
         wm.event_timer_remove(self._job_timer)
-        if self._plan.live is not None:
+        if self._job_plan.live is not None:
             wm.progress_end()
         self._job_area.header_text_set(None)
         store.redraw()  # every editor: live work may have changed what all of them show (a pose)
