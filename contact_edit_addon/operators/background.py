@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from .. import store
+from .common import guarded
 
 #: Seconds between checks of the worker (and header updates) while it runs.
 POLL_INTERVAL = 0.05
@@ -138,8 +139,9 @@ class Background:
 
     Its planning step returns a :class:`Plan`, or the operator's status when nothing is left to do (an
     error reported, a quick change made). ``execute`` hands it to :meth:`now`, ``invoke`` (or the
-    ``modal`` that ends a stroke) to :meth:`in_background`; ``modal`` hands its events to
-    :meth:`modal_background` while :meth:`waiting`. The mixin's own state and helpers are named
+    ``modal`` that ends a stroke) to :meth:`in_background`. While :meth:`waiting`, events go to
+    :meth:`modal_background`: this mixin's ``modal`` does just that, and an operator with a modal of its
+    own (a brush stroke) hands them on itself. The mixin's own state and helpers are named
     ``_job…`` (and ``_show_wait``, ``_end_wait``), so that they never meet an operator's.
     """
 
@@ -174,6 +176,10 @@ class Background:
 
     def waiting(self) -> bool:
         return getattr(self, "_job", None) is not None
+
+    @guarded
+    def modal(self, context, event) -> set:
+        return self.modal_background(context, event)
 
     def modal_background(self, context, event) -> set:
         """Esc stops (live work with what it found, other work with nothing changed); right-click stops

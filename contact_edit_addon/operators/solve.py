@@ -51,10 +51,6 @@ class CONTACT_EDIT_OT_solve(Background, HotkeyTool, bpy.types.Operator):
     def invoke(self, context, event):
         return self.in_background(context, self._plan(context))
 
-    @guarded
-    def modal(self, context, event):
-        return self.modal_background(context, event)
-
     def _plan(self, context) -> Plan:
         """The solve as background work: set up on the main thread (:func:`posing.problem`), solved off it
         with each better pose shown as it is found (the viewport shows the best so far, not every

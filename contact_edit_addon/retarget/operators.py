@@ -239,10 +239,6 @@ class CONTACT_EDIT_OT_annotation_propose(Background, ExplainedPoll, bpy.types.Op
         return self.in_background(context, self._plan(context))
 
     @guarded
-    def modal(self, context, event):
-        return self.modal_background(context, event)
-
-    @guarded
     def execute(self, context):
         return self.now(context, self._plan(context))
 
