@@ -14,8 +14,7 @@ import bpy
 import numpy as np
 
 from geodesics import ContactError, SurfacePoints, TriMesh
-from solver import ContactIK, GraspResult, MeshSDF, SolverError, SolveResult, Weights, grasp
-from solver.hands import Hand
+from solver import ContactIK, GraspResult, Hand, MeshSDF, SolverError, SolveResult, Weights, grasp
 
 from . import bridge, store
 

@@ -2,7 +2,7 @@
 
 import bpy
 
-from solver.ik import KEEP_OUT_WEIGHT
+from solver import KEEP_OUT_WEIGHT
 
 WEIGHTS = ("weight_distance", "weight_normal", "weight_prior", "weight_penetration")
 

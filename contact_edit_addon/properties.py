@@ -3,15 +3,15 @@
 Every mesh object has ``contact_edit``: its contact set as a contact file (JSON text: intrinsic points,
 axes, links, pairs; see :mod:`geodesics.contacts`), plus a list of its patches (names, colours) that the
 sidebar's list shows and that is rebuilt from the set whenever it changes. A hand also has a second set of
-the same kind, its retargeting annotation (:mod:`.annotation`: each patch's axis an axial curve, or the
-patch a virtual marker), with its own list; ``layer`` says which of the two the tools edit. The scene has
-``contact_edit``: which objects are the hand and the object, and the solver settings. Keeping the data
+the same kind, its retargeting annotation (:mod:`.retarget.annotation`: each patch's axis an axial curve, or
+the patch a virtual marker), with its own list; ``layer`` says which of the two the tools edit. The scene
+has ``contact_edit``: which objects are the hand and the object, and the solver settings. Keeping the data
 in ID properties makes it survive save and reload and follow undo.
 """
 
 import bpy
 
-from solver.ik import KEEP_OUT_WEIGHT
+from solver import KEEP_OUT_WEIGHT
 
 
 def _renamed(self, context) -> None:

@@ -1,37 +1,32 @@
 """Registering and unregistering everything, in dependency order (and the reverse).
 
-Once registered, the objects Python tracks for its cycle collector (about 110,000 in Blender 5.0 with the
-add-on loaded: Blender's, NumPy's, SciPy's and our modules, functions and classes, which live as long as
-the session) are frozen out of it (:func:`gc.freeze`). Otherwise every full collection walks them all,
-25-50 ms that fall inside whatever runs then: measured with ``contact-edit bench operators``, the longest
-of nine runs of each tool was 50-60 ms above its median (a solve's first pose 119 ms against a median of
-67 ms); frozen, a full collection takes under a millisecond. Freezing changes nothing else: reference
-counting still frees those objects, and only garbage cycles among them (a few, once) are never collected.
+Once registered, the objects Python tracks for its cycle collector (Blender's, NumPy's, SciPy's and our
+modules, functions and classes, which live as long as the session) are frozen out of it
+(:func:`gc.freeze`). Otherwise every full collection walks them all, and the pause falls inside whatever
+runs then: a tool's response, a solve's first pose (``contact-edit bench operators`` shows the longest run
+of each tool beside its median). Freezing changes nothing else: reference counting still frees those
+objects, and only garbage cycles among them (a few, once) are never collected.
 
 After start-up, timer ticks make the procedural hands that Retarget checks its hands against, one per
-tick (20-40 ms each): its first check of a session held Blender for 113 ms, 102 of them making all four
-(``contact-edit bench operators``).
+tick, so that the first Retarget of a session need not make them all while Blender waits.
 """
 
 import gc
 
 import bpy
 
-from solver.retarget.annotate import make_next_procedural_topology
+from solver.retarget import make_next_procedural_topology
 
-from . import (
-    assets,
-    device_panel,
-    device_properties,
-    device_session,
-    keymaps,
-    operators,
-    overlays,
-    panels,
-    properties,
-    retarget_properties,
-)
+from . import operators, properties
+from .assets import operators as add_menu
+from .device import operators as device_operators
+from .device import panel as device_panel
+from .device import properties as device_properties
+from .device import session as device_session
 from .preferences import CONTACT_EDIT_AP_preferences
+from .retarget import operators as retarget_operators
+from .retarget import properties as retarget_properties
+from .ui import keymaps, overlays, panels
 
 #: Each class after those it refers to: property groups before the groups and operators that hold them,
 #: a sub-panel after its parent.
@@ -41,13 +36,15 @@ classes = (
     *device_properties.classes,
     *retarget_properties.classes,
     *operators.classes,
-    *assets.classes,
+    *retarget_operators.classes,
+    *device_operators.classes,
+    *add_menu.classes,
     *panels.classes,
     *device_panel.classes,
 )
 #: What else the add-on adds to Blender (pointer properties on its types, handlers, menus, draw callbacks,
 #: hotkeys), once the classes are registered; taken away in the reverse order, before them.
-modules = (properties, device_properties, retarget_properties, device_session, assets, overlays, keymaps)
+modules = (properties, device_properties, retarget_properties, device_session, add_menu, overlays, keymaps)
 
 register_classes, unregister_classes = bpy.utils.register_classes_factory(classes)
 

@@ -12,9 +12,7 @@ import json
 
 import bpy
 
-from geodesics import ContactError, ContactSet
-from geodesics.files import read_json, write_atomically
-from geodesics.schema import Fields
+from geodesics import ContactError, ContactSet, Fields, read_json, write_atomically
 
 from . import bridge
 

@@ -19,11 +19,12 @@ Rig side:
   ``solver.Rig``); sample poses are ``(p, b, 4)`` quaternions.
 * :func:`tangible.reachability.fit` — Eq. 1/7 by Gauss–Newton in the exponential map;
   :func:`reduce` — greedy joints and the splitter integer program; :mod:`tangible.assembly` — the
-  instructions as text and SVG.
+  instructions as text (:func:`instructions_text`) and SVG, and the pieces' colours by name
+  (:func:`colour_name`).
 * :mod:`tangible.rigreducer` — the authors' RigReducer files (libigl ``.tgf``/``.dmat``): :func:`read_rig`,
   :func:`write_rig`, :func:`write_reduction`, :func:`read_reduction`.
 * :class:`PoseSpace` — PCA/Delaunay/barycentric-slerp interpolation; :class:`Puppet` — joints to bones,
-  joints to scalars, calibration, evaluation per frame.
+  joints to scalars (read through one of :data:`CHANNELS`), calibration, evaluation per frame.
 
 Also :mod:`tangible.creatures` (procedural rigs with sample poses) and :mod:`tangible.benchmark` (the
 link, interpolation and Fig. 7 figures). Quaternions are ``(w, x, y, z)`` throughout
@@ -33,13 +34,14 @@ link, interpolation and Fig. 7 figures). Quaternions are ``(w, x, y, z)`` throug
 import logging
 
 from . import protocol
+from .assembly import colour_name, instructions_text
 from .device import SPLITTERS, DeviceTree, Piece, SplitterType
 from .errors import DeviceError, ProtocolError, RecordError, RigError, TangibleError
 from .joint import joint_angles, joint_rotation
 from .motions import KeyframeMotion, RandomMotion
 from .posespace import PoseSpace
 from .protocol import Command
-from .puppet import JointBinding, Puppet, PuppetPose, ScalarBinding, match_device
+from .puppet import CHANNELS, JointBinding, Puppet, PuppetPose, ScalarBinding, match_device
 from .reader import SerialReader, list_ports
 from .reduction import Kit, Reduction, reduce
 from .rigreducer import read_reduction, read_rig, write_reduction, write_rig
@@ -52,6 +54,7 @@ from .topology import ComponentState, DeviceState, DeviceTopology
 logging.getLogger(__name__).addHandler(logging.NullHandler())
 
 __all__ = [
+    "CHANNELS",
     "SPLITTERS",
     "Command",
     "ComponentState",
@@ -79,6 +82,8 @@ __all__ = [
     "SplitterType",
     "TangibleError",
     "area_weights",
+    "colour_name",
+    "instructions_text",
     "joint_angles",
     "joint_rotation",
     "list_ports",

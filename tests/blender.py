@@ -30,7 +30,11 @@ def keyed_frames(obj):
 
 
 #: The ``contact-edit`` console script, run by this Python (the dev venv's, with its packages).
-CONTACT_EDIT = (sys.executable, "-c", "import sys; from contact_edit_addon.cli import main; sys.exit(main())")
+CONTACT_EDIT = (
+    sys.executable,
+    "-c",
+    "import sys; from contact_edit_addon.commands.cli import main; sys.exit(main())",
+)
 
 
 def fresh_process(args, *, user_dir: Path, cwd: Path | None = None, timeout: float = 1800):

@@ -27,7 +27,7 @@ from solver import hands, objects
 from solver.grasp import grasp, placement
 from contact_edit_addon import assets
 from contact_edit_addon.bridge import BridgeError
-from contact_edit_addon import scene_motion
+from contact_edit_addon.retarget import motion as scene_motion
 from solver.retarget import detection
 
 bpy.ops.wm.read_factory_settings(use_empty=True)

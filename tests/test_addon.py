@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contact_edit_addon import build
+from contact_edit_addon.commands import build
 from solver.hands import KINDS
 
 from .blender import run_blender
@@ -505,7 +505,7 @@ def test_panel_messages_wrap_to_the_sidebar_width_instead_of_being_cut(tmp_path)
         """
         import blf
         from types import SimpleNamespace
-        from contact_edit_addon import panels
+        from contact_edit_addon.ui import panels
         text = "1877 contacts in 2 patch pairs mean distance 2.52 cm, largest 9.87 cm, stopped by you"
         found = {}
         for width, scale in ((291, 1.0), (200, 1.0), (400, 2.0)):

@@ -1,4 +1,4 @@
-"""Annotating hands in Blender (contact_edit_addon.annotation) in the real bpy module.
+"""Annotating hands in Blender (contact_edit_addon.retarget.annotation) in the real bpy module.
 
 The held-mug scene's human hand and an alien hand, each annotated by *Propose Annotation* from its
 armature: the finger curves must be the built-in annotation's (the same bones, read from Blender), the
@@ -33,7 +33,10 @@ SCRIPT = """
 import time
 import contact_edit_addon
 contact_edit_addon.register()
-from contact_edit_addon import annotation, bridge, rigify, scene_retarget, store
+from contact_edit_addon import bridge, store
+from contact_edit_addon.assets import rigify
+from contact_edit_addon.retarget import annotation
+from contact_edit_addon.retarget import scene as scene_retarget
 from solver.retarget import HandPairAnnotation
 from solver.retarget.annotate import hand_curves
 

@@ -27,9 +27,9 @@ import numpy as np
 import contact_edit_addon
 contact_edit_addon.register()
 from contact_edit_addon import assets
-from contact_edit_addon import device_session
-from contact_edit_addon.bridge import device as device_bridge
-from contact_edit_addon.operators import device
+from contact_edit_addon.device import session as device_session
+from contact_edit_addon.device import bridge as device_bridge
+from contact_edit_addon.device import operators as device
 from solver import hands
 from tangible import (SPLITTERS, DeviceTree, Faults, Piece, PoseSpace, RandomMotion, Simulator, joint_angles,
                       joint_rotation)
@@ -188,7 +188,7 @@ class FakeLayout:
                                                                  active_name, i)
 
 def panel_shows():
-    from contact_edit_addon import device_panel
+    from contact_edit_addon.device import panel as device_panel
     shown = []
     panel = device_panel.VIEW3D_PT_contact_edit_device
     fake = type("Panel", (), {"layout": FakeLayout(shown), **{name: staticmethod(getattr(panel, name))

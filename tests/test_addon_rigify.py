@@ -1,6 +1,6 @@
 """Rigify, the rig Blender animators pose, in the real bpy 5.0.1 module: a generated human whose right hand
-is the procedural human hand, skinned with automatic weights (contact_edit_addon.rigify). The solver must
-pose its controls and reproduce Blender's deformation through every constraint and B-Bone."""
+is the procedural human hand, skinned with automatic weights (contact_edit_addon.assets.rigify). The solver
+must pose its controls and reproduce Blender's deformation through every constraint and B-Bone."""
 
 import importlib.util
 
@@ -13,7 +13,7 @@ pytestmark = pytest.mark.skipif(importlib.util.find_spec("bpy") is None, reason=
 BUILD = """
 import contact_edit_addon
 contact_edit_addon.register()
-from contact_edit_addon import rigify
+from contact_edit_addon.assets import rigify
 bpy.ops.wm.read_factory_settings(use_empty=True)
 hand, rig = rigify.rigify_hand(bpy.context.scene.collection)
 bpy.ops.wm.save_as_mainfile(filepath=PATH)

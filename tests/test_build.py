@@ -7,7 +7,7 @@ import tomllib
 import zipfile
 from base64 import urlsafe_b64encode
 
-from contact_edit_addon import build
+from contact_edit_addon.commands import build
 
 
 def test_manifest_template_follows_blenders_rules():

@@ -5,7 +5,7 @@ import re
 
 import pytest
 
-from contact_edit_addon.cli import main
+from contact_edit_addon.commands.cli import main
 
 
 def test_bench_geodesics_prints_the_table(capsys):

@@ -6,7 +6,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from contact_edit_addon.cli import main
+from contact_edit_addon.commands.cli import main
 
 
 def one_line(text: str) -> str:

@@ -5,7 +5,7 @@ import re
 
 import pytest
 
-from contact_edit_addon.cli import build_parser, main
+from contact_edit_addon.commands.cli import build_parser, main
 
 
 def subcommands() -> dict[str, argparse.ArgumentParser]:

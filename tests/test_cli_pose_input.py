@@ -115,7 +115,7 @@ def test_quiet_stdout_drops_c_level_output_and_restores_the_descriptor(tmp_path)
     dropped inside the block, even when the block fails; what is printed around it is kept, in order."""
     script = """
 import ctypes, os, sys
-from contact_edit_addon.batch import quiet_stdout
+from contact_edit_addon.commands.batch import quiet_stdout
 libc = ctypes.CDLL(None)
 print("before", flush=True)
 libc.printf(b"c-before\\n")

@@ -3,7 +3,7 @@
 import io
 import re
 
-from contact_edit_addon.cli import _StageBars, main
+from contact_edit_addon.commands.cli import _StageBars, main
 
 
 class Clock:

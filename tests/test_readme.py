@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contact_edit_addon import keymaps
+from contact_edit_addon.ui import keymaps
 
 from . import readme
 from .blender import fresh_process
@@ -163,7 +163,7 @@ def _blender_with_the_demo(demo, tmp_path):
     """Debian's Blender 5.2 (in a chroot) with the built extension installed as a user installs it, and a
     work folder holding the demo's folder: (the Blender, the folder, ``run(command, timeout=120)``, which
     runs a shell command there with Blender pointed at its user folder)."""
-    from contact_edit_addon import build
+    from contact_edit_addon.commands import build
 
     from .window import harness
 

@@ -1,4 +1,4 @@
-"""A retargeted motion written into the .blend (contact_edit_addon.retarget_action) in the real bpy module:
+"""A retargeted motion written into the .blend (contact_edit_addon.retarget.action) in the real bpy module:
 the action plays back, frame for frame, the poses apply_pose sets, on the keys apply_pose would key; its
 quaternions never flip sign between keys; the metrics plot travels packed in the .blend."""
 
@@ -18,7 +18,8 @@ from mathutils import Euler, Matrix
 from bpy_extras import anim_utils
 import contact_edit_addon
 contact_edit_addon.register()
-from contact_edit_addon import assets, bridge, retarget_action
+from contact_edit_addon import assets, bridge
+from contact_edit_addon.retarget import action as retarget_action
 from contact_edit_addon.bridge import BridgeError
 bpy.ops.wm.read_factory_settings(use_empty=True)
 scene = bpy.context.scene
@@ -147,7 +148,7 @@ def test_the_action_keys_the_rigify_controls(tmp_path):
     pose played back deforms the hand as the solver's pose through every constraint and B-Bone."""
     out = run_blender(
         """
-        from contact_edit_addon import rigify
+        from contact_edit_addon.assets import rigify
         hand, rig = rigify.rigify_hand(scene.collection)
         rig.pose.bones["upper_arm_parent.R"]["IK_FK"] = 1.0  # the arm follows the FK chain
         rig.update_tag(); bpy.context.view_layer.update()

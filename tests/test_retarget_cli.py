@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from contact_edit_addon.cli import main
+from contact_edit_addon.commands.cli import main
 from solver.hands import make_hand
 from solver.retarget import KeyframeMotion, Motion
 from solver.retarget.metrics import IntersectionMeter

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from contact_edit_addon import cli
+from contact_edit_addon.commands import cli
 from geodesics import MeshWarning, TriMesh
 from geodesics.primitives import icosphere
 from solver.retarget import Motion, pair_motion

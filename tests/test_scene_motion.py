@@ -1,4 +1,4 @@
-"""Reading a Blender scene's hand-object motion (contact_edit_addon.scene_motion) in the real bpy module.
+"""Reading a Blender scene's hand-object motion (contact_edit_addon.retarget.motion) in the real bpy module.
 
 The scene (:mod:`tests.held_mug`): the procedural human hand as an armature and a skinned mesh and a
 mug scaled (1.5, 1.5, 1.2), keyed linearly: the open hand approaches the mug (frames 1-15), closes on it
@@ -208,7 +208,7 @@ def test_contacts_lie_on_the_hand_and_pair_nearby(scene_read, f):
 ERRORS = """
 import re
 from contact_edit_addon.bridge import BridgeError
-from contact_edit_addon.scene_motion import motion_from_scene
+from contact_edit_addon.retarget import motion_from_scene
 from solver import SolverError
 
 def message(*args, **kwargs):

@@ -1,4 +1,4 @@
-"""Retargeting inside Blender (contact_edit_addon.scene_retarget) in the real bpy module.
+"""Retargeting inside Blender (contact_edit_addon.retarget.scene) in the real bpy module.
 
 The source: the procedural human hand's armature keyed over 120 frames, holding a mug that it lifts and
 turns (:mod:`tests.held_mug`). The target: the procedural alien hand (three fingers), a second armature
@@ -9,8 +9,8 @@ the transferred contacts say, as near as the retargeting measured and within the
 the hand's length); a run stopped part way changes nothing, and the next one goes on from its frames.
 
 Then the same grasp, 24 frames of it, onto the rig animators pose: a Rigify human whose right hand is the
-procedural human hand (contact_edit_addon.rigify). The action must key only Rigify's controls (the hand's
-IK control, the palm and finger controls), and Blender's own evaluation of the rig, through its IK,
+procedural human hand (contact_edit_addon.assets.rigify). The action must key only Rigify's controls (the
+hand's IK control, the palm and finger controls), and Blender's own evaluation of the rig, through its IK,
 constraints and B-Bones, must put the contacts where the retargeting measured them.
 """
 
@@ -44,7 +44,7 @@ SCRIPT = """
 import os
 import pathlib
 import time
-from contact_edit_addon import scene_retarget
+from contact_edit_addon.retarget import scene as scene_retarget
 from mathutils import Matrix, Euler
 alien = hands.make_hand("alien", 1 / {scale})  # life-size in the world, inside the scaled armature
 alien_obj, alien_rig = assets.hand_objects(alien, "Alien", scene.collection)
@@ -199,7 +199,8 @@ RIGIFY_KEYS = (1, 8, 12, 16, 20, 24)  # held_mug's keys, squeezed into 24 frames
 RIGIFY_CHECK = (1, 12, 18, 24)
 
 RIGIFY = """
-from contact_edit_addon import rigify, scene_retarget
+from contact_edit_addon.assets import rigify
+from contact_edit_addon.retarget import scene as scene_retarget
 from bpy_extras import anim_utils
 target, rig = rigify.rigify_hand(scene.collection)
 outcome = scene_retarget.retarget_scene(scene, hand_obj, mug, target, 1, 24, folder={folder!r}, workers=2)
@@ -270,7 +271,8 @@ def test_blender_plays_the_rigify_action_back_as_solved(rigify_retargeted):
 
 ANNOTATION_FILES = """
 import json
-from contact_edit_addon import bridge, scene_retarget
+from contact_edit_addon import bridge
+from contact_edit_addon.retarget import scene as scene_retarget
 from contact_edit_addon.bridge import BridgeError
 from solver.retarget.annotate import default_annotation, procedural_hand
 alien_obj, _ = assets.hand_objects(hands.make_hand("alien"), "Alien", scene.collection)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from contact_edit_addon import cli
+from contact_edit_addon.commands import cli
 from geodesics.benchmark import Row
 from solver import benchmark
 

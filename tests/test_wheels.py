@@ -17,7 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from contact_edit_addon import build, keymaps
+from contact_edit_addon.commands import build
+from contact_edit_addon.ui import keymaps
 
 from . import bpy_only, hotkeys
 
@@ -56,7 +57,8 @@ bounds = type("Bounds", (), {"lower": np.full(2, -10.0), "upper": np.full(2, 10.
 failure = minimize(lambda t: (float(t @ t), {}), lambda t: (float(t @ t), {}, np.full(2, np.nan)),
     np.array([1.0, 2.0]), np.arange(2), np.ones(2), bounds, "lbfgs")[4]
 import time
-from bl_ext.user_default.contact_edit import assets, scene_retarget
+from bl_ext.user_default.contact_edit import assets
+from bl_ext.user_default.contact_edit.retarget import scene as scene_retarget
 from solver.hands import make_hand
 from solver.retarget.job import ChildRun
 alien, alien_rig = assets.hand_objects(make_hand("alien"), "Alien", scene.collection)

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from contact_edit_addon import build, keymaps
+from contact_edit_addon.commands import build
+from contact_edit_addon.ui import keymaps
 
 from . import hotkeys
 from .window import harness

@@ -1,8 +1,8 @@
 """The one place where Blender data becomes the libraries' numpy types and back: meshes and surface
 points (:mod:`.mesh`), a hand's armature (read whole by :mod:`.rigs`, its constraints by :mod:`.constraints`,
 its B-Bones by :mod:`.bbones`) and vertex groups as a skinned rig posed through its controls, and poses
-(:mod:`.armature`),
-an armature and the numbers a puppet device drives (:mod:`.device`).
+(:mod:`.armature`). The puppet device's share (an armature and the numbers the device drives) lives with
+the device, in :mod:`..device.bridge`.
 """
 
 from .armature import (

@@ -23,7 +23,7 @@ from scipy import sparse
 
 from geodesics import SurfacePoints
 from solver import SkinnedMesh, SolverError
-from solver.retarget.propose import Skeleton
+from solver.retarget import Skeleton
 from solver.rig import Armature, ControlRig, Plan
 from solver.rotations import euler_to_matrix, matrix_to_quaternion, quaternion_to_axis_angle
 

@@ -1,7 +1,13 @@
-"""The operators under ``bpy.ops.contact_edit``: each works interactively and with explicit properties
-in background mode, so scripts run the same tools an animator clicks."""
+"""The contact tools under ``bpy.ops.contact_edit``: paint, axis, transfer, the edits, the library,
+mirroring, proxies, the solve and flex-to-contact. Each works interactively and with explicit properties
+in background mode, so scripts run the same tools an animator clicks.
 
-from . import annotation, axis, device, edit, manage, mirror, paint, proxy, retarget, solve, transfer
+What every operator of the add-on shares is here too: :mod:`.common` (polls that say why not, library
+errors reported) and :mod:`.background` (work off Blender's main thread). The operators of a feature
+live in its folder: :mod:`..retarget.operators`, :mod:`..device.operators`, :mod:`..assets.operators`.
+"""
+
+from . import axis, edit, manage, mirror, paint, proxy, solve, transfer
 
 classes = (
     *paint.classes,
@@ -12,7 +18,4 @@ classes = (
     *mirror.classes,
     *proxy.classes,
     *solve.classes,
-    *retarget.classes,
-    *annotation.classes,
-    *device.classes,
 )

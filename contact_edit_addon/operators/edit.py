@@ -11,7 +11,8 @@ import math
 
 import bpy
 
-from .. import overlays, store
+from .. import store
+from ..ui import overlays
 from .common import (
     NAVIGATION,
     USER_ERRORS,

@@ -7,8 +7,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from geodesics import ContactSet, TriMesh
-from geodesics.mirror import MirrorMap, flip_name, mirror_contacts
+from geodesics import ContactSet, MirrorMap, TriMesh, flip_name, mirror_contacts
 from solver.rig import PoseChannel, mirror_pose
 
 from .. import bridge, store

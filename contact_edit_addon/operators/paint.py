@@ -18,10 +18,19 @@ import bpy
 import numpy as np
 from bpy_extras import view3d_utils
 
-from geodesics import ContactError, ContactPatch, SurfacePoints, farthest_pair_axis, medial_axis
-from geodesics.brush import Dab, erase, paint
+from geodesics import (
+    ContactError,
+    ContactPatch,
+    Dab,
+    SurfacePoints,
+    erase,
+    farthest_pair_axis,
+    medial_axis,
+    paint,
+)
 
-from .. import bridge, overlays, store
+from .. import bridge, store
+from ..ui import overlays
 from .background import Background, Plan
 from .common import NAVIGATION, HotkeyTool, guarded, mesh_object, need_mesh, unique_name
 

@@ -1,22 +1,24 @@
 """Pose the hand's armature from the contacts: contact IK (§4.4) and flex-to-contact (1988).
 
-Interactively, the solve runs in a worker thread (it is pure numpy; Blender data is only touched here,
-on the main thread) and the viewport shows each better pose as it is found, as the user study asked.
-Esc stops and keeps the best pose so far; right-click cancels and puts back the pose it started from.
-Either way the header, the status bar and the panel say which happened.
+Interactively, the solve runs in a worker thread (it is pure numpy; Blender data is only touched on the
+main thread), as every long operator's work does (:mod:`.background`), and the viewport shows each better
+pose as it is found, as the user study asked. Esc stops and keeps the best pose so far; right-click
+cancels and puts back the pose it started from. Either way the header, the status bar and the panel say
+which happened.
 """
 
 from __future__ import annotations
 
-import threading
-
 import bpy
 
 from .. import bridge, posing, preferences, store
+from .background import Background, Feed, Live, Plan
 from .common import HotkeyTool, guarded, need_hand_and_object
 
 #: Viewport refreshes per second while solving.
 REDRAW_RATE = 30.0
+#: What the header says the keys do while solving.
+KEYS = "Esc: stop and keep the best pose · Right-click: cancel"
 
 
 def need_pairs(context) -> str | None:
@@ -26,7 +28,7 @@ def need_pairs(context) -> str | None:
     return reason
 
 
-class CONTACT_EDIT_OT_solve(HotkeyTool, bpy.types.Operator):
+class CONTACT_EDIT_OT_solve(Background, HotkeyTool, bpy.types.Operator):
     """Pose the hand's armature so that its contact patches meet their pairs on the object"""
 
     bl_idname = "contact_edit.solve"
@@ -43,10 +45,50 @@ class CONTACT_EDIT_OT_solve(HotkeyTool, bpy.types.Operator):
 
     @guarded
     def execute(self, context):
-        problem = posing.problem(context.scene, self.stage)
-        result = problem.ik.solve(problem.theta0, problem.free, max_evaluations=self.max_evaluations)
-        self._finish(context, problem, result)
-        return {"FINISHED"}
+        return self.now(context, self._plan(context))
+
+    @guarded
+    def invoke(self, context, event):
+        return self.in_background(context, self._plan(context))
+
+    def _plan(self, context) -> Plan:
+        """The solve as background work: set up on the main thread (:func:`posing.problem`), solved off it
+        with each better pose shown as it is found (the viewport shows the best so far, not every
+        trial), then written back and said how it went."""
+        problem, limit, feed = posing.problem(context.scene, self.stage), self.max_evaluations, Feed()
+
+        def progress(step) -> bool:
+            better = feed.latest is None or step.energy < feed.latest.energy
+            return feed.report(step.iteration, step if better else None)
+
+        def work():
+            return problem.ik.solve(problem.theta0, problem.free, progress, limit)
+
+        def commit(context, result) -> set:
+            kept = feed.stopped and result.status == "cancelled"  # Esc: the best pose so far
+            self._finish(context, problem, result, "kept" if kept else None)
+            return {"FINISHED"}
+
+        def show(context, step, evaluations: int) -> str:
+            problem.apply(step.theta)
+            terms = ", ".join(f"{k} {v:.3g}" for k, v in step.terms.items() if v)
+            return (
+                f"Solving: {evaluations} of at most {limit} evaluations, best energy {step.energy:.4g} "
+                f"({terms})"
+            )
+
+        def restore(context) -> set:
+            return self._put_back(
+                context, problem, {"INFO"}, "Cancelled; the pose is as it was before the solve"
+            )
+
+        def failed(context, error) -> set:
+            return self._put_back(
+                context, problem, {"ERROR"}, f"The solve failed; the pose is as it was: {error}"
+            )
+
+        live = Live(feed, show, restore, failed, total=limit, keys=KEYS, interval=1.0 / REDRAW_RATE)
+        return Plan("Solving", work, commit, live=live, thread="contact-edit solve")
 
     def _finish(self, context, problem, result, outcome: str | None = None) -> None:
         problem.apply(result.theta, context.scene.frame_current if self.keyframe else None)
@@ -58,84 +100,12 @@ class CONTACT_EDIT_OT_solve(HotkeyTool, bpy.types.Operator):
         warn = off or (outcome or result.status) in posing.WARNINGS
         self.report({"WARNING"} if warn else {"INFO"}, message)
 
-    # ------------------------------------------------------------------ interactive
-
-    @guarded
-    def invoke(self, context, event):
-        if context.area is None or context.window is None:
-            return self.execute(context)
-        self._problem = posing.problem(context.scene, self.stage)
-        self._latest = self._result = self._error = None
-        self._shown = self._evaluations = 0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._work, name="contact-edit solve", daemon=True)
-        self._thread.start()
-        self._timer = context.window_manager.event_timer_add(1.0 / REDRAW_RATE, window=context.window)
-        context.window_manager.progress_begin(0, self.max_evaluations)
-        context.window_manager.modal_handler_add(self)
-        context.area.header_text_set("Solving… · Esc: stop and keep the best pose · Right-click: cancel")
-        return {"RUNNING_MODAL"}
-
-    def _work(self) -> None:
-        """The solve, off the main thread; it only records progress and the result."""
-        problem = self._problem
-
-        def progress(step):
-            if self._latest is None or step.energy < self._latest.energy:
-                self._latest = step  # the viewport shows the best pose so far, not every trial
-            self._evaluations = step.iteration
-            return self._stop.is_set()
-
-        try:
-            self._result = problem.ik.solve(problem.theta0, problem.free, progress, self.max_evaluations)
-        except Exception as err:  # reported on the main thread
-            self._error = err
-
-    def modal(self, context, event):
-        if event.type in {"ESC", "RIGHTMOUSE"} and event.value == "PRESS":
-            self._stop.set()
-            self._thread.join()
-            if event.type == "RIGHTMOUSE":
-                self._problem.apply(self._problem.theta0)
-                context.scene.contact_edit.last_solve = "Cancelled; the pose is as it was before the solve"
-                self.report({"INFO"}, context.scene.contact_edit.last_solve)
-                return self._end(context, {"CANCELLED"})
-            stopped = self._result is not None and self._result.status == "cancelled"
-            return self._done(context, "kept" if stopped else None)
-        if self._thread.is_alive():
-            if event.type == "TIMER":
-                self._show_progress(context)
-            return {"PASS_THROUGH"}
-        return self._done(context)
-
-    def _show_progress(self, context) -> None:
-        step = self._latest
-        if step is None or self._evaluations == self._shown:
-            return
-        self._shown = self._evaluations
-        self._problem.apply(step.theta)
-        context.window_manager.progress_update(self._evaluations)
-        terms = ", ".join(f"{k} {v:.3g}" for k, v in step.terms.items() if v)
-        context.area.header_text_set(
-            f"Solving: {self._evaluations} of at most {self.max_evaluations} evaluations, best energy "
-            f"{step.energy:.4g} ({terms}) · Esc: stop and keep the best pose · Right-click: cancel"
-        )
-
-    def _done(self, context, outcome: str | None = None) -> set:
-        if self._error is not None:
-            self._problem.apply(self._problem.theta0)
-            context.scene.contact_edit.last_solve = f"The solve failed; the pose is as it was: {self._error}"
-            self.report({"ERROR"}, context.scene.contact_edit.last_solve)
-            return self._end(context, {"CANCELLED"})
-        self._finish(context, self._problem, self._result, outcome)
-        return self._end(context, {"FINISHED"})
-
-    def _end(self, context, status: set) -> set:
-        context.window_manager.event_timer_remove(self._timer)
-        context.window_manager.progress_end()
-        context.area.header_text_set(None)
-        store.redraw()
-        return status
+    def _put_back(self, context, problem, level: set, message: str) -> set:
+        """The pose the solve started from, and ``message`` on the panel and in a report."""
+        problem.apply(problem.theta0)
+        context.scene.contact_edit.last_solve = message
+        self.report(level, message)
+        return {"CANCELLED"}
 
 
 class CONTACT_EDIT_OT_flex_to_contact(HotkeyTool, bpy.types.Operator):

@@ -11,7 +11,8 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from .. import overlays, store
+from .. import store
+from ..ui import overlays
 from .common import (
     NAVIGATION,
     USER_ERRORS,

@@ -13,8 +13,10 @@ result.theta, result.contact_distance, result.motion.save("witch.npz")
 """
 
 from . import synthetic
-from .annotate import default_annotation
+from .annotate import default_annotation, make_next_procedural_topology, procedural_kind
 from .annotations import AnnotationError, HandPairAnnotation
+from .detection import with_contacts
+from .drawn import annotation_from_patches
 from .frames import FrameResult, FrameTask, HandSpec, RetargetWeights, estimate, solve_frame
 from .grab import GrabError, load_grab, save_grab
 from .interchange import (
@@ -26,13 +28,16 @@ from .interchange import (
     save_kmexp,
     save_markers,
 )
+from .job import ChildRun, JobOutcome, RetargetJob, Stopped, run_job
 from .motion import Contacts, Motion, MotionError
 from .pairing import pair_motion
 from .pipeline import Retarget, RetargetOptions, retarget, save_result
+from .propose import Proposal, Skeleton, propose_patches
 from .transfer import transfer_motion
 
 __all__ = [
     "AnnotationError",
+    "ChildRun",
     "ContactSequence",
     "Contacts",
     "FrameResult",
@@ -41,19 +46,29 @@ __all__ = [
     "HandPairAnnotation",
     "HandSpec",
     "InterchangeError",
+    "JobOutcome",
     "KeyframeMotion",
     "Motion",
     "MotionError",
+    "Proposal",
     "Retarget",
+    "RetargetJob",
     "RetargetOptions",
     "RetargetWeights",
+    "Skeleton",
+    "Stopped",
+    "annotation_from_patches",
     "default_annotation",
     "estimate",
     "load_grab",
     "load_markers",
+    "make_next_procedural_topology",
     "pair_markers",
     "pair_motion",
+    "procedural_kind",
+    "propose_patches",
     "retarget",
+    "run_job",
     "save_grab",
     "save_kmexp",
     "save_markers",
@@ -61,4 +76,5 @@ __all__ = [
     "solve_frame",
     "synthetic",
     "transfer_motion",
+    "with_contacts",
 ]

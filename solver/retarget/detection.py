@@ -6,7 +6,7 @@ average) that lie within ``contact_distance`` of the posed hand surface, or insi
 the pairing cutoff ε, when the hand mesh is closed and has an inside), are the frame's object contacts;
 each is then paired with the hand by ray casting along the object's normal (:func:`.pairing.pair_motion`,
 §3.2), which discards the few whose ray misses the hand or meets it farther than ε. The add-on reads
-motions from Blender scenes this way (``contact_edit_addon.scene_motion``).
+motions from Blender scenes this way (``contact_edit_addon.retarget.motion``).
 
 The hand's size is the square root of its surface area in the motion's first frame (0.245 m for the
 procedural human hand with its forearm), so the defaults follow the motion's scale.

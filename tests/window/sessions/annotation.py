@@ -22,14 +22,14 @@ def steps(s):
     settings = scene.contact_edit_retarget
     settings.source, settings.held, settings.target = hand_obj, mug, alien_obj
     bpy.ops.ed.undo_push(message="Scene set up")  # what this script made is an undo step of its own
-    panels = addon("panels")
+    panels = addon("ui.panels")
     for panel in (panels.VIEW3D_PT_contact_edit_retarget, panels.VIEW3D_PT_contact_edit_annotation):
         open_by_default(panel)
     yield from open_contact_tab(s, view)
     yield from s.move(*view.centre())
     yield from s.shot("contacts")
     store = addon("store")
-    calls = timed_calls(addon("operators.annotation").CONTACT_EDIT_OT_annotation_propose)
+    calls = timed_calls(addon("retarget.operators").CONTACT_EDIT_OT_annotation_propose)
 
     with view.override():
         bpy.ops.contact_edit.annotation_propose("INVOKE_DEFAULT", object_name=hand_obj.name)

@@ -100,10 +100,10 @@ def steps(s):
     settings.workers = 2
     settings.folder = os.path.join(os.environ["CONTACT_EDIT_SESSION"], "retarget")
     bpy.ops.ed.undo_push(message="Scene set up")  # what this script made is an undo step of its own
-    open_by_default(addon("panels").VIEW3D_PT_contact_edit_retarget)
+    open_by_default(addon("ui.panels").VIEW3D_PT_contact_edit_retarget)
     yield from open_contact_tab(s, view)
     yield from s.move(*view.centre())
-    calls = timed_calls(addon("operators.retarget").CONTACT_EDIT_OT_retarget)
+    calls = timed_calls(addon("retarget.operators").CONTACT_EDIT_OT_retarget)
     s.record("made_before_retarget", sorted(annotate._TOPOLOGIES))  # by timer ticks after start-up
 
     # Started, then stopped with Esc while the frames are solved.

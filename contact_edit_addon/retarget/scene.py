@@ -1,19 +1,19 @@
 """Retargeting in Blender: a scene's hand-object motion onto another hand's armature, keyed as an action.
 
-The source is any deforming hand mesh holding a rigidly moving object (:mod:`.scene_motion`); the target
+The source is any deforming hand mesh holding a rigidly moving object (:mod:`.motion`); the target
 is a hand mesh deformed by an armature, posed through the controls an animator keys
-(:func:`.bridge.posed_hand`: any rig the Solve tool poses, Rigify included). The work comes in three
+(:func:`..bridge.posed_hand`: any rig the Solve tool poses, Rigify included). The work comes in three
 parts, so that an operator keeps Blender responsive:
 
 1. :func:`prepare` (main thread) reads the target's rig and the annotation, and returns a
-   :class:`.scene_motion.SceneReader` for the frames, read a few per timer tick, and the
+   :class:`.motion.SceneReader` for the frames, read a few per timer tick, and the
    :class:`solver.retarget.job.RetargetJob`;
 2. :func:`solver.retarget.job.run_job` (plain data: here, or in a child process with
    :class:`solver.retarget.job.ChildRun`) finds and pairs the contacts, carries the motion into the target
    armature's space and runs the retargeting pipeline, its frames solved in worker processes and stored as
    they finish, so that running it again goes on from them;
 3. :func:`commit` (main thread) keys the result on the target's controls as one action
-   (:func:`.retarget_action.write_action`) and packs the metrics plot into the .blend.
+   (:func:`.action.write_action`) and packs the metrics plot into the .blend.
 
 :func:`retarget_scene` does all three in turn, for scripts and ``blender --background``.
 
@@ -36,14 +36,20 @@ import numpy as np
 
 from geodesics import SurfacePoints
 from solver import SolverError
-from solver.retarget import HandPairAnnotation, RetargetOptions
-from solver.retarget.annotate import procedural_kind
-from solver.retarget.job import JobOutcome, RetargetJob, run_job
+from solver.retarget import (
+    HandPairAnnotation,
+    JobOutcome,
+    RetargetJob,
+    RetargetOptions,
+    procedural_kind,
+    run_job,
+)
 
-from . import bridge, scene_motion
+from .. import bridge
+from ..bridge import BridgeError, PosedHand
+from . import motion as scene_motion
+from .action import metrics_image, write_action, write_metrics
 from .annotation import hand_pair, has_annotation
-from .bridge import BridgeError, PosedHand
-from .retarget_action import metrics_image, write_action, write_metrics
 
 #: ``progress(stage, done, total)``: "read" (frames read), then :func:`solver.retarget.job.run_job`'s.
 Progress = Callable[[str, int, int], None]
@@ -89,7 +95,7 @@ def prepare(
     Raises
     ------
     BridgeError
-        Naming what is wrong: the objects (as :class:`.scene_motion.SceneReader` checks them), a target
+        Naming what is wrong: the objects (as :class:`.motion.SceneReader` checks them), a target
         the solve cannot pose, an annotation file that is missing, broken or made for other hands.
     """
     scene_motion.evaluated_depsgraph(scene)  # world matrices as Blender shows them, even just after a script
@@ -157,7 +163,7 @@ def commit(
 ):
     """Key the result on the target's controls as one new action (named ``action_name``, or after the two
     hands), with the per-frame metrics as curves of the armature's custom properties in it
-    (:func:`.retarget_action.write_metrics`), and pack the metrics plot (when matplotlib made one); main
+    (:func:`.action.write_metrics`), and pack the metrics plot (when matplotlib made one); main
     thread. Returns (action, image or None)."""
     name = action_name or f"{job.names[2]} from {job.names[0]}"
     r = outcome.result

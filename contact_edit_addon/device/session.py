@@ -1,6 +1,6 @@
 """A live puppet device driving one armature: the scene's bindings as a :class:`tangible.Puppet`, the
 port or the built-in simulator, and :class:`Session`, which applies the device's latest state on each tick.
-The operators that start, tick and stop sessions are in :mod:`contact_edit_addon.operators.device`.
+The operators that start, tick and stop sessions are in :mod:`.operators`.
 
 Sessions are kept here (``sessions``) per armature *name* (never a Blender reference, so undo cannot leave
 them dangling). A session owns the :class:`tangible.SerialReader` (and the :class:`tangible.Simulator`
@@ -25,6 +25,7 @@ from tangible import (
     SPLITTERS,
     Command,
     DeviceError,
+    DeviceState,
     DeviceTree,
     Faults,
     JointBinding,
@@ -38,12 +39,11 @@ from tangible import (
     TangibleError,
     list_ports,
     match_device,
+    protocol,
 )
-from tangible.protocol import MIN_ID, POLL_SIZE
-from tangible.topology import DeviceState
 
-from .bridge import BridgeError
-from .bridge.device import (
+from ..bridge import BridgeError
+from .bridge import (
     ArmatureRig,
     ScalarTarget,
     action_sample_poses,
@@ -51,7 +51,7 @@ from .bridge.device import (
     scalar_target,
     write_rotations,
 )
-from .device_properties import IDENTITY
+from .properties import IDENTITY
 
 #: Longest wait, when connecting, for the device to show every bound joint (the firmware's records climb
 #: one piece per poll: a few hundred ms for 25 joints).
@@ -166,10 +166,10 @@ def simulated_device(settings) -> DeviceTree:
     joints (or of a few joints when nothing is bound)."""
     if settings.plan:
         plan = plan_device(settings.plan)
-        live = {p.id: MIN_ID + p.id for p in plan} | {0: 0}
+        live = {p.id: protocol.MIN_ID + p.id for p in plan} | {0: 0}
         return DeviceTree(replace(p, id=live[p.id], parent=live[p.parent]) for p in plan)
     ids = list(dict.fromkeys(b.joint for b in settings.bindings))
-    ids = ids or [MIN_ID + i for i in range(1, SIMULATED_JOINTS + 1)]
+    ids = ids or [protocol.MIN_ID + i for i in range(1, SIMULATED_JOINTS + 1)]
     return DeviceTree(Piece(j, "joint", ids[i - 1] if i else 0) for i, j in enumerate(ids))
 
 
@@ -546,7 +546,7 @@ def wait_for_device(
     state = reader.state()
     link = state.link
     if link.frames == 0:
-        if link.bytes <= POLL_SIZE * link.echoes:  # at most our own polls, echoed by the adapter
+        if link.bytes <= protocol.POLL_SIZE * link.echoes:  # at most our own polls, echoed by the adapter
             raise BridgeError(f"nothing arrives on {port}: is the device plugged in and powered?")
         raise BridgeError(
             f"{port} sends data, but no puppet device messages ({link.bytes} bytes, {link.corrupt} damaged "

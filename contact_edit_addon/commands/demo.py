@@ -22,9 +22,9 @@ import numpy as np
 from mathutils import Vector
 from scipy.spatial import cKDTree
 
-from solver.grasp import palm_centre
+from solver import palm_centre
 
-from . import assets, bridge, posing, store
+from .. import assets, bridge, posing, store
 
 #: Contact pads brushed on the hand: name -> (the bone whose palm-side skin the pad is on, the radius of
 #: the brush's dab in metres). Small enough that a round fingertip can rest on the mug along all of it.

@@ -20,7 +20,7 @@ import bmesh
 import bpy
 import numpy as np
 
-from . import bridge, store
+from .. import bridge, store
 
 #: Screen pixels the overlay floats above the surface: points lowest, the axis over them, its markers on top.
 POINT_LIFT, AXIS_LIFT, MARKER_LIFT = 1.5, 3.0, 4.5

@@ -3,12 +3,10 @@ recording and proposing a device for a kit."""
 
 import bpy
 
-from tangible import list_ports
-from tangible.assembly import colour_name
-from tangible.topology import DeviceState
+from tangible import DeviceState, colour_name, list_ports
 
-from .device_session import device_armature, live_session
-from .panels import SubPanel
+from ..ui.panels import SubPanel
+from .session import device_armature, live_session
 
 
 def joint_label(state: DeviceState, joint: int) -> str:

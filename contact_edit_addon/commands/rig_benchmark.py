@@ -1,6 +1,6 @@
 """``contact-edit bench rigs``: contact IK on a Rigify hand beside the same contacts on the procedural human
-hand, whose mesh the Rigify hand skins (:mod:`.rigify`): the cost of posing a production rig through its
-controls, constraints and B-Bones instead of a plain tree of bones.
+hand, whose mesh the Rigify hand skins (:mod:`..assets.rigify`): the cost of posing a production rig through
+its controls, constraints and B-Bones instead of a plain tree of bones.
 
 Both hands carry the same palm-side contact points of one mesh. Each solve starts from the pose the hand
 was read in and recovers a seeded random pose of its DOFs (the fingers turned by up to 0.45 rad about
@@ -15,11 +15,11 @@ from collections.abc import Callable
 import bpy
 import numpy as np
 
-from geodesics import SurfacePoints
-from geodesics.benchmark import Row
+from geodesics import SurfacePoints, benchmark
 from solver import ContactIK, SkinnedMesh, hands
 
-from . import bridge, rigify
+from .. import bridge
+from ..assets import rigify
 
 #: Palm-side points per patch (16 patches: about 1,900 contacts, the paper's contact count).
 POINTS_PER_PATCH = 120
@@ -63,7 +63,7 @@ def _solves(
     return float(np.median(seconds)), int(np.median(evaluations)), worst
 
 
-def run(repeat: int = 5, progress: Callable[[str], None] | None = None) -> list[Row]:
+def run(repeat: int = 5, progress: Callable[[str], None] | None = None) -> list[benchmark.Row]:
     """The benchmark's rows: per Rigify arm mode, energy evaluations and solves beside the procedural hand."""
     say = progress or (lambda _message: None)
     say("building the Rigify human with the procedural hand (Rigify's Generate Rig takes a while)")
@@ -98,11 +98,11 @@ def run(repeat: int = 5, progress: Callable[[str], None] | None = None) -> list[
         peer_name = f"procedural human hand ({kit.rig.n_dofs} DOF)"
         solve, evaluations, worst = _solves(posed.skin, points, rig.start, repeat)
         rows += [
-            Row(
+            benchmark.Row(
                 f"{what}: energy and gradient", _energy_time(ik, rig.start, True), peer["gradient"], peer_name
             ),
-            Row(f"{what}: energy", _energy_time(ik, rig.start, False), peer["energy"], peer_name),
-            Row(
+            benchmark.Row(f"{what}: energy", _energy_time(ik, rig.start, False), peer["energy"], peer_name),
+            benchmark.Row(
                 f"{what}: solve from the pose read",
                 solve,
                 peer["solve"][0],

@@ -5,14 +5,14 @@ on the README demo's scene (the procedural hand grasping the mug, its six pads p
 Edits run in ``execute``: the whole call blocks. (The mirror operators need a mirror-symmetric hand,
 which the demo's is not; they are not timed here.) Painting and the Axis tool
 run their slow part (the default axis, the parameterization) in a worker thread when started from the
-window (:mod:`.operators.background`), so the main thread holds only the rest: that is the call's time
+window (:mod:`..operators.background`), so the main thread holds only the rest: that is the call's time
 less the work's. A solve plans on the main thread (reading the rig, the contacts and the object), then
 solves in a thread; its first pose is drawn once the first evaluation is done and the pose applied,
-at the next redraw tick (:data:`.operators.solve.REDRAW_RATE`). Retarget (the demo's motion onto the
+at the next redraw tick (:data:`..operators.solve.REDRAW_RATE`). Retarget (the demo's motion onto the
 alien hand) checks its inputs and reads the rigs in ``invoke``, then reads frames on timer ticks of
-:data:`.operators.retarget.READ_BUDGET` each; the rest runs in a child process. Its check compares the
+:data:`..retarget.operators.READ_BUDGET` each; the rest runs in a child process. Its check compares the
 hands with the procedural ones, which timer ticks after start-up make, one per tick
-(:func:`.registration.make_procedural_topologies`); here they run, timed, before the first Retarget.
+(:func:`..registration.make_procedural_topologies`); here they run, timed, before the first Retarget.
 """
 
 from __future__ import annotations
@@ -26,13 +26,15 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from geodesics.benchmark import WARMUP, Row
+from geodesics import benchmark
 from solver.hands import make_hand
 
-from . import assets, demo, posing, registration, scene_retarget, store
-from .operators import background
-from .operators.retarget import READ_BUDGET
-from .operators.solve import REDRAW_RATE
+from .. import assets, posing, registration, store
+from ..operators import background
+from ..operators.solve import REDRAW_RATE
+from ..retarget import scene as scene_retarget
+from ..retarget.operators import READ_BUDGET
+from . import demo
 
 #: What a user waits at most for any operator of ours (issue 15).
 GOAL = 0.1
@@ -45,7 +47,7 @@ PAINTED = 0.012
 def _times(call: Callable[[], object], repeat: int) -> tuple[float, float]:
     """Median and longest of ``repeat`` timed runs, after :data:`WARMUP` untimed ones. A ``call`` that
     returns a float says how many of its seconds were spent off the main thread (:func:`_worker_time`)."""
-    for _ in range(WARMUP):
+    for _ in range(benchmark.WARMUP):
         call()
     times = []
     for _ in range(repeat):
@@ -67,7 +69,7 @@ def _timer_ticks(timer: Callable[[], float | None]) -> list[float]:
 
 
 def _worker_time(call: Callable[[], object]) -> float:
-    """Run an operator ``call`` that plans a :class:`~.operators.background.Plan`, as ``execute`` does,
+    """Run an operator ``call`` that plans a :class:`~..operators.background.Plan`, as ``execute`` does,
     and return the seconds its ``work`` took (which runs in a worker thread from the window)."""
     spent = []
     now = background.Background.now
@@ -110,13 +112,13 @@ def _first_pose(scene, repeat: int) -> tuple[float, float]:
         problem.apply(problem.theta0)
         return took
 
-    for _ in range(WARMUP):
+    for _ in range(benchmark.WARMUP):
         once()
     times = [once() for _ in range(repeat)]
     return float(np.median(times)), float(max(times))
 
 
-def run(repeat: int = 7, progress: Callable[[str], None] | None = None) -> list[Row]:
+def run(repeat: int = 7, progress: Callable[[str], None] | None = None) -> list[benchmark.Row]:
     """The benchmark's rows, one per operator: the median main-thread time, the longest in the note."""
     say = progress or (lambda _message: None)
     say("building the demo scene (hand, mug, six paired pads, solved)")
@@ -165,13 +167,13 @@ def run(repeat: int = 7, progress: Callable[[str], None] | None = None) -> list[
     for label, call in calls:
         say(label)
         median, longest = _times(call, repeat)
-        rows.append(Row(label, median, GOAL, "goal", f"longest {1e3 * longest:.1f} ms"))
+        rows.append(benchmark.Row(label, median, GOAL, "goal", f"longest {1e3 * longest:.1f} ms"))
     say("solve: first pose")
     scene.frame_set(demo.OPEN_FRAME)  # the demo's open hand, keyed before its solve
     median, longest = _first_pose(scene, repeat)
     tick = 1.0 / REDRAW_RATE
     rows.append(
-        Row(
+        benchmark.Row(
             "solve from the open hand: plan, first better pose applied",
             median,
             GOAL,
@@ -182,21 +184,23 @@ def run(repeat: int = 7, progress: Callable[[str], None] | None = None) -> list[
     say("solve: plan (main thread)")
     median, longest = _times(lambda: posing.problem(scene), repeat)
     rows.append(
-        Row("solve: plan (the main thread's part)", median, GOAL, "goal", f"longest {1e3 * longest:.1f} ms")
+        benchmark.Row(
+            "solve: plan (the main thread's part)", median, GOAL, "goal", f"longest {1e3 * longest:.1f} ms"
+        )
     )
     say("retarget: invoke, reading frames")
     rows += _retarget(scene, hand, mug, repeat)
     return rows
 
 
-def _retarget(scene, hand, mug, repeat: int) -> list[Row]:
+def _retarget(scene, hand, mug, repeat: int) -> list[benchmark.Row]:
     """Retarget's main-thread parts: the start-up ticks making the procedural hands it checks against,
     invoke's (check the inputs, read the rigs) and a frame read on a timer tick."""
     alien, _ = assets.hand_objects(make_hand("alien"), "Alien", scene.collection)
     frames = (scene.frame_start, scene.frame_end)
     ticks = _timer_ticks(registration.make_procedural_topologies)
     rows = [
-        Row(
+        benchmark.Row(
             "start-up: make the procedural hands (a timer tick each)",
             float(np.median(ticks)),
             GOAL,
@@ -214,7 +218,7 @@ def _retarget(scene, hand, mug, repeat: int) -> list[Row]:
         first = time.perf_counter() - began
         median, longest = _times(prepare, repeat)
         rows.append(
-            Row(
+            benchmark.Row(
                 "retarget: invoke (check the inputs, read the rigs)",
                 median,
                 GOAL,
@@ -223,9 +227,9 @@ def _retarget(scene, hand, mug, repeat: int) -> list[Row]:
             )
         )
         try:
-            median, longest = _times(reader.read_next, min(repeat, reader.n_frames - WARMUP))
+            median, longest = _times(reader.read_next, min(repeat, reader.n_frames - benchmark.WARMUP))
         finally:
             reader.restore()
     note = f"longest {1e3 * longest:.1f} ms; a tick reads frames for {1e3 * READ_BUDGET:.0f} ms"
-    rows.append(Row("retarget: read a frame (on a timer tick)", median, GOAL, "goal", note))
+    rows.append(benchmark.Row("retarget: read a frame (on a timer tick)", median, GOAL, "goal", note))
     return rows

@@ -38,6 +38,7 @@ import argparse
 import importlib.util
 import sys
 import time
+from collections.abc import Callable
 
 
 class _InputError(Exception):
@@ -282,8 +283,8 @@ def _demo(args: argparse.Namespace) -> int:
 def _pose(args: argparse.Namespace) -> int:
     if _blender() is None:
         return 2
+    from ..bridge import BridgeError
     from . import batch
-    from .bridge import BridgeError
 
     with _StageBars(capped=True) as bars:
         try:
@@ -329,7 +330,7 @@ _GRAB_FPS, _CUTOFF = 120.0, 0.01
 
 
 def _import_grab(args: argparse.Namespace) -> int:
-    from geodesics.meshio import load_mesh
+    from geodesics import load_mesh
     from solver.retarget import grab, pair_motion
 
     _output_file(args.output)
@@ -363,7 +364,7 @@ def _weight(text: str) -> tuple[str, float]:
     """``NAME=VALUE`` of one Eq. 3 weight (``--weight``), checked by argparse."""
     from dataclasses import fields
 
-    from solver.retarget.frames import RetargetWeights
+    from solver.retarget import RetargetWeights
 
     names = [f.name for f in fields(RetargetWeights)]
     name, _, value = text.partition("=")
@@ -383,9 +384,7 @@ def _retarget(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from solver import SolverError
-    from solver.retarget import annotate, annotations, pipeline
-    from solver.retarget.frames import HandSpec, RetargetWeights
-    from solver.retarget.motion import Motion
+    from solver.retarget import HandSpec, Motion, RetargetWeights, annotate, annotations, pipeline
 
     out = Path(args.output)
     _output_folder(args.output)
@@ -456,7 +455,13 @@ class _Help(argparse.ArgumentDefaultsHelpFormatter):
         return super()._get_help_string(action)
 
 
+#: Makes a subcommand's parser from its name, one-line help and description (with the command's help
+#: format and ``--debug``); each subcommand adds its arguments to it.
+_Subcommand = Callable[[str, str, str], argparse.ArgumentParser]
+
+
 def build_parser() -> argparse.ArgumentParser:
+    """The command line: the options every subcommand shares, then each subcommand's own."""
     parser = argparse.ArgumentParser(
         prog="contact-edit",
         description="Pose hands against objects by their contact areas, retarget hand-object motions and "
@@ -479,6 +484,22 @@ def build_parser() -> argparse.ArgumentParser:
             name, help=help, description=description, formatter_class=_Help, parents=[debug]
         )
 
+    for add in (
+        _bench_parser,
+        _ablation_parser,
+        _build_extension_parser,
+        _demo_parser,
+        _pose_parser,
+        _synthesize_parser,
+        _import_grab_parser,
+        _retarget_parser,
+    ):
+        add(command)
+    return parser
+
+
+def _bench_parser(command: _Subcommand) -> None:
+    """The ``bench`` subcommand's arguments."""
     bench = command(
         "bench",
         "run a benchmark and print its table",
@@ -494,6 +515,10 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--rays", type=int, default=2000, help="geodesics: rays / targets per query")
     bench.add_argument("--frames", type=int, default=1000, help="retarget: frames of the motion")
     bench.set_defaults(run=_bench)
+
+
+def _ablation_parser(command: _Subcommand) -> None:
+    """The ``ablation`` subcommand's arguments."""
     ablation = command(
         "ablation",
         "print the contact IK ablation table (Fig. 11)",
@@ -501,6 +526,10 @@ def build_parser() -> argparse.ArgumentParser:
         "the contact errors, as the paper's Fig. 11.",
     )
     ablation.set_defaults(run=_ablation)
+
+
+def _build_extension_parser(command: _Subcommand) -> None:
+    """The ``build-extension`` subcommand's arguments."""
     ext = command(
         "build-extension",
         "build the Blender extension zips (one per platform)",
@@ -514,6 +543,10 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     ext.add_argument("--all-platforms", action="store_true", help="build for every supported platform")
     ext.set_defaults(run=_build_extension)
+
+
+def _demo_parser(command: _Subcommand) -> None:
+    """The ``demo`` subcommand's arguments."""
     demo = command(
         "demo",
         "pose a procedural hand on a mug; save, render and summarize",
@@ -524,6 +557,10 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", default="demo", help="folder for demo.blend, demo.png, contacts.json")
     demo.add_argument("--no-render", action="store_true", help="skip the Cycles render")
     demo.set_defaults(run=_demo)
+
+
+def _pose_parser(command: _Subcommand) -> None:
+    """The ``pose`` subcommand's arguments."""
     pose = command(
         "pose",
         "pose the hand of a saved scene from its contacts",
@@ -549,6 +586,10 @@ def build_parser() -> argparse.ArgumentParser:
     pose.add_argument("--stage", choices=["ROOT", "ALL", "SELECTED"], default="ALL", help="which bones move")
     pose.add_argument("--overwrite", action="store_true", help="allow the output to be the input scene")
     pose.set_defaults(run=_pose)
+
+
+def _synthesize_parser(command: _Subcommand) -> None:
+    """The ``synthesize`` subcommand's arguments."""
     synth = command(
         "synthesize",
         "write a synthetic hand-object manipulation (.npz motion)",
@@ -566,6 +607,10 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("--scale", type=float, default=1.0, help="scale of the whole scene")
     synth.add_argument("--density", type=float, default=10.0, help="hand contact samples per cm²")
     synth.set_defaults(run=_synthesize)
+
+
+def _import_grab_parser(command: _Subcommand) -> None:
+    """The ``import-grab`` subcommand's arguments."""
     imp = command(
         "import-grab",
         "import a GRAB motion exported by the retargeting paper's authors (.npz)",
@@ -588,6 +633,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="keep the object contacts as they are; do not find hand contacts (default: pair them)",
     )  # fmt: skip
     imp.set_defaults(run=_import_grab)
+
+
+def _retarget_parser(command: _Subcommand) -> None:
+    """The ``retarget`` subcommand's arguments."""
     ret = command(
         "retarget",
         "retarget a motion onto another hand",
@@ -623,7 +672,6 @@ def build_parser() -> argparse.ArgumentParser:
         help="also run the §4.6 baselines (fingertip keypoints, DexPilot keyvectors) and write Table 1",
     )  # fmt: skip
     ret.set_defaults(run=_retarget)
-    return parser
 
 
 # The projects' families of exceptions for bad input (module, class): a command that raises one of them
@@ -637,7 +685,7 @@ _INPUT_ERRORS = (
     ("solver.retarget.motion", "MotionError"),
     ("tangible.errors", "TangibleError"),
     ("contact_edit_addon.bridge.errors", "BridgeError"),
-    ("contact_edit_addon.build", "BuildError"),
+    ("contact_edit_addon.commands.build", "BuildError"),
 )
 
 

@@ -3,7 +3,7 @@ the port or the built-in simulator, the bindings of device joints to bones and t
 kit and sample poses for proposing a device, the record mode, and a status line.
 
 A binding's ``joint`` is the component id the device reports (shown in the panel while connected). After
-:class:`~contact_edit_addon.operators.device.CONTACT_EDIT_OT_device_propose`, the ids are the planned
+:class:`~contact_edit_addon.device.operators.CONTACT_EDIT_OT_device_propose`, the ids are the planned
 pieces' until the assembled device is connected and matched to the plan (``plan``), which turns them into
 the live ids. Everything here is saved with the .blend and follows undo; the live connection is not.
 """
@@ -12,7 +12,7 @@ import math
 
 import bpy
 
-from tangible.puppet import CHANNELS
+from tangible import CHANNELS
 
 _CHANNEL_WORDS = {
     "bend_a": ("First hinge", "The first hinge angle"),

@@ -5,7 +5,8 @@ default width; long messages (the last solve) are split into one line per clause
 import blf
 import bpy
 
-from . import annotation, posing, store
+from .. import posing, store
+from ..retarget import annotation
 
 
 class CONTACT_EDIT_UL_patches(bpy.types.UIList):

@@ -18,9 +18,9 @@ from tangible import (
     area_weights,
 )
 
-from .armature import rotation_path, set_bone_rotation, to_quaternion
-from .errors import BridgeError
-from .mesh import vertex_group_weights
+from ..bridge.armature import rotation_path, set_bone_rotation, to_quaternion
+from ..bridge.errors import BridgeError
+from ..bridge.mesh import vertex_group_weights
 
 
 @dataclass(frozen=True)

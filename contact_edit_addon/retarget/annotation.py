@@ -1,6 +1,6 @@
 """A hand's retargeting annotation in the .blend: curves and markers drawn with the contact tools.
 
-Each hand mesh keeps a second contact set beside its contacts (:mod:`.store`, layer ``ANNOTATION``): a
+Each hand mesh keeps a second contact set beside its contacts (:mod:`..store`, layer ``ANNOTATION``): a
 patch's axis is an axial curve (drawn with the Axis tool along a finger's palmar side or across the palm,
 the patch painted as a strip across the finger), or the patch is a virtual marker (its entry's *Marker*
 flag). Curves and markers pair between two hands by name; λ_A and λ_S are measured from the two hands'
@@ -16,19 +16,23 @@ from __future__ import annotations
 import bpy
 
 from geodesics import TriMesh
-from solver.retarget import AnnotationError, HandPairAnnotation
-from solver.retarget.drawn import annotation_from_patches
-from solver.retarget.propose import Proposal, propose_patches
+from solver.retarget import (
+    AnnotationError,
+    HandPairAnnotation,
+    Proposal,
+    annotation_from_patches,
+    propose_patches,
+)
 
-from . import bridge, store
-from .bridge import BridgeError
+from .. import bridge, store
+from ..bridge import BridgeError
 
 LAYER = "ANNOTATION"
 
 
 def has_annotation(obj: bpy.types.Object | None) -> bool:
     """Whether ``obj`` is a mesh with an annotation (none where the add-on is not registered: a script
-    using :mod:`.scene_retarget` with the bare ``bpy`` module)."""
+    using :mod:`.scene` with the bare ``bpy`` module)."""
     return (
         obj is not None
         and obj.type == "MESH"

@@ -20,8 +20,8 @@ import bpy
 from geodesics import ContactError, MeshError
 from solver import SolverError
 
-from . import posing, store
-from .bridge import BridgeError
+from .. import posing, store
+from ..bridge import BridgeError
 
 
 class SceneChoiceError(BridgeError):

@@ -2,10 +2,10 @@
 joints to bones (as a proposed device says, or by hand) and to shape keys or any number property,
 calibrate, key, stop, and propose a device for a kit.
 
-The live connection they start and stop is a :class:`~contact_edit_addon.device_session.Session`, in
-:mod:`contact_edit_addon.device_session` (which keeps one per driven armature and says what each tick
+The live connection they start and stop is a :class:`~.session.Session`, in
+:mod:`.session` (which keeps one per driven armature and says what each tick
 applies); the bindings and settings they edit are the scene's, in
-:mod:`contact_edit_addon.device_properties`. Interactively ``contact_edit.device_connect`` ticks the
+:mod:`.properties`. Interactively ``contact_edit.device_connect`` ticks the
 session from a modal timer; in background mode (no window, so no timers) scripts call
 ``contact_edit.device_update`` instead, e.g. once per frame. ``contact_edit.device_stop`` closes the port
 and gives the bones and numbers the device touched back their values from before connecting.
@@ -16,15 +16,15 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from tangible import Kit, reduce
-from tangible.assembly import instructions_text
+from tangible import Kit, instructions_text, reduce
 
 from .. import store
 from ..bridge import BridgeError
-from ..bridge.device import ArmatureRig, ScalarTarget, action_sample_poses, scalar_target
-from ..device_panel import draw_mapping
-from ..device_properties import CHANNEL_ITEMS, TARGETS
-from ..device_session import (
+from ..operators.common import ExplainedPoll, HotkeyTool, guarded
+from .bridge import ArmatureRig, ScalarTarget, action_sample_poses, scalar_target
+from .panel import draw_mapping
+from .properties import CHANNEL_ITEMS, TARGETS
+from .session import (
     Session,
     build_puppet,
     device_armature,
@@ -35,7 +35,6 @@ from ..device_session import (
     sessions,
     wait_for_device,
 )
-from .common import ExplainedPoll, HotkeyTool, guarded
 
 #: The text datablock that receives a proposed device's assembly instructions.
 INSTRUCTIONS_TEXT = "Device assembly"

@@ -2,9 +2,9 @@
 the retargeting's per-frame metrics as curves in the same action (the Graph Editor plots them, with no
 dependency), and its metrics plot as a packed image where matplotlib drew one.
 
-The action keys exactly what :func:`.bridge.apply_pose` keys (the controls an animator keys, in their own
+The action keys exactly what :func:`..bridge.apply_pose` keys (the controls an animator keys, in their own
 rotation modes, and the root control's location), at every given frame, but is built in one pass: every
-frame's channel values are computed at once (:func:`.bridge.armature.pose_channels`) and each F-curve's
+frame's channel values are computed at once (:func:`..bridge.armature.pose_channels`) and each F-curve's
 keys are filled by ``foreach_set``, not key by key. Keys take the interpolation and handle type of the
 user's preferences for new keys, as ``keyframe_insert`` gives them (Blender's defaults: Bézier with
 auto-clamped handles): the keys are already dense samples of a smooth motion, so the curves pass through
@@ -23,8 +23,8 @@ import bpy
 import numpy as np
 from bpy_extras import anim_utils
 
-from .bridge.armature import PosedHand, pose_channels
-from .bridge.errors import BridgeError
+from ..bridge.armature import PosedHand, pose_channels
+from ..bridge.errors import BridgeError
 
 
 def write_action(posed: PosedHand, theta, frames, name: str, replace: bool = False) -> bpy.types.Action:
@@ -33,7 +33,7 @@ def write_action(posed: PosedHand, theta, frames, name: str, replace: bool = Fal
     Parameters
     ----------
     posed : PosedHand
-        The target hand, as :func:`.bridge.posed_hand` read it.
+        The target hand, as :func:`..bridge.posed_hand` read it.
     theta : (F, d)
         Its DOF curves, one row per frame in the order of ``posed.rig`` (not clipped to the limits).
     frames : (F,) or range

@@ -2,11 +2,11 @@
 
 The source hand is any mesh object whose evaluated (deformed) mesh keeps its topology over the frames:
 skinned to an armature, animated by shape keys, read from a mesh cache; whatever the depsgraph
-evaluates. Its topology is its own mesh's (:func:`.bridge.trimesh`: the polygons triangulated by
+evaluates. Its topology is its own mesh's (:func:`..bridge.trimesh`: the polygons triangulated by
 :meth:`geodesics.TriMesh.from_polygons`), so the contacts and annotations made on it in the add-on
 apply; each frame's world vertices are the evaluated vertices carried by its world matrix.
 
-The object is rigid: its mesh (:func:`.bridge.trimesh`) moved by its world matrix. A motion's object
+The object is rigid: its mesh (:func:`..bridge.trimesh`) moved by its world matrix. A motion's object
 poses are rotations and translations only, so a scale in that matrix, which must stay the same over the
 frames (uniform or not, mirrored or not), is baked into the object's rest vertices (a mirroring also
 reverses its triangles, which keep facing out).
@@ -21,13 +21,11 @@ from collections.abc import Callable
 import bpy
 import numpy as np
 
-from geodesics import MeshError, TriMesh
-from geodesics.errors import describe_ids
-from solver.retarget.detection import with_contacts
-from solver.retarget.motion import Motion, MotionError
+from geodesics import MeshError, TriMesh, describe_ids
+from solver.retarget import Motion, MotionError, with_contacts
 
-from . import bridge
-from .bridge import BridgeError
+from .. import bridge
+from ..bridge import BridgeError
 
 __all__ = ["SceneReader", "evaluated_depsgraph", "motion_from_scene"]
 
@@ -279,7 +277,7 @@ def evaluated_depsgraph(scene) -> bpy.types.Depsgraph:
 
 
 def _evaluated_arrays(evaluated) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`.bridge.mesh_arrays` of an evaluated object's mesh (its modifiers and shape keys applied)."""
+    """:func:`..bridge.mesh_arrays` of an evaluated object's mesh (its modifiers and shape keys applied)."""
     mesh = evaluated.to_mesh()
     try:
         return bridge.mesh_arrays(mesh)

@@ -57,16 +57,21 @@ PYTHONS = {
 
 #: Our libraries, bundled as one pure-Python wheel.
 LIBRARIES = ("geodesics", "solver", "tangible")
-#: Files of the add-on package that belong to the command line, not inside Blender.
-CONSOLE_ONLY = ("cli.py", "build.py", "rig_benchmark.py")
+#: Files of the add-on package (paths inside it) that belong to the command line, not inside Blender.
+CONSOLE_ONLY = ("commands/cli.py", "commands/build.py", "commands/rig_benchmark.py")
 
 
 class BuildError(RuntimeError):
     """The extension could not be built (a wheel could not be fetched, a file is missing)."""
 
 
-def project_root() -> Path:
+def addon_root() -> Path:
+    """The add-on package's folder, which the extension zip holds (its subpackages' folders included)."""
     return Path(__file__).resolve().parent.parent
+
+
+def project_root() -> Path:
+    return addon_root().parent
 
 
 def manifest_template() -> dict:
@@ -147,15 +152,16 @@ def build_extension(
     version = manifest["version"]
     cache = cache or Path.home() / ".cache" / "contact-edit" / "wheels"
     output.mkdir(parents=True, exist_ok=True)
-    addon = {
-        path.name: path.read_bytes()
-        for path in sorted(Path(__file__).resolve().parent.glob("*.py"))
-        if path.name not in CONSOLE_ONLY
-    }
-    for sub in sorted(Path(__file__).resolve().parent.iterdir()):
+    root = addon_root()
+    sources = list(root.glob("*.py"))
+    for sub in sorted(root.iterdir()):
         if sub.is_dir() and (sub / "__init__.py").exists():
-            for path in sorted(sub.rglob("*.py")):
-                addon[path.relative_to(sub.parent).as_posix()] = path.read_bytes()
+            sources += sub.rglob("*.py")
+    addon = {
+        name: path.read_bytes()
+        for path in sorted(sources)
+        if (name := path.relative_to(root).as_posix()) not in CONSOLE_ONLY
+    }
     lib_name, lib_bytes = library_wheel(version)
     written = []
     for platform in platforms:
