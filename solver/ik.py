@@ -230,6 +230,50 @@ def _array(value, shape_tail, what: str) -> np.ndarray:
     return a
 
 
+def _targets(k: int, target_points, target_normals) -> tuple[np.ndarray, np.ndarray]:
+    """The k contacts' target points (k, 3) and unit normals (k, 3), checked."""
+    if k == 0:
+        raise SolverError("there are no contacts: hand_points is empty")
+    T = _array(target_points, (3,), "target_points")
+    N = _array(target_normals, (3,), "target_normals")
+    if len(T) != k or len(N) != k:
+        raise SolverError(
+            f"got {k} hand points but {len(T)} target points and {len(N)} target normals; they pair up "
+            "one to one"
+        )
+    for what, a in (("target points", T), ("target normals", N)):
+        bad = np.flatnonzero(~np.all(np.isfinite(a), axis=1))
+        if bad.size:
+            raise SolverError(f"{what} of contacts {describe_ids(bad)} are NaN or infinite", contacts=bad)
+    length = np.linalg.norm(N, axis=1)
+    bad = np.flatnonzero(length == 0)
+    if bad.size:
+        raise SolverError(f"target normals of contacts {describe_ids(bad)} are zero", contacts=bad)
+    return T, N / length[:, None]
+
+
+def _method(algorithm: str | None, gradient: str, norm: str) -> tuple[str, str, str]:
+    """(algorithm, gradient, norm), checked; the algorithm by default :data:`TRUST_REGION` where it
+    applies (the squared norm, analytic derivatives), else ``"slsqp"``."""
+    if gradient not in GRADIENTS:
+        raise SolverError(f"gradient must be one of {', '.join(GRADIENTS)}, got {gradient!r}")
+    if norm not in NORMS:
+        raise SolverError(f"norm must be one of {', '.join(NORMS)}, got {norm!r}")
+    squares = norm == "squared" and gradient == "analytic"
+    if algorithm is None:
+        algorithm = TRUST_REGION if squares else "slsqp"
+    if algorithm == TRUST_REGION and not squares:
+        raise SolverError(
+            f"the {TRUST_REGION} algorithm needs norm='squared' and the analytic gradient; use one of "
+            f"{', '.join(ALGORITHMS)}"
+        )
+    if algorithm != TRUST_REGION and algorithm not in ALGORITHMS:
+        raise SolverError(
+            f"unknown algorithm {algorithm!r}; use {TRUST_REGION} or one of {', '.join(ALGORITHMS)}"
+        )
+    return algorithm, gradient, norm
+
+
 def _patches(patches, k: int) -> tuple[tuple[str, ...], np.ndarray]:
     """(names, patch index (k,) per contact) of ``patches``, a sequence of (name, count), or one patch."""
     if patches is None:
@@ -333,50 +377,15 @@ class ContactIK:
             raise SolverError(
                 f"hand_points must be geodesics.SurfacePoints, got {type(hand_points).__name__}"
             )
-        k = len(hand_points)
-        if k == 0:
-            raise SolverError("there are no contacts: hand_points is empty")
-        T = _array(target_points, (3,), "target_points")
-        N = _array(target_normals, (3,), "target_normals")
-        if len(T) != k or len(N) != k:
-            raise SolverError(
-                f"got {k} hand points but {len(T)} target points and {len(N)} target normals; they pair up "
-                "one to one"
-            )
-        for what, a in (("target points", T), ("target normals", N)):
-            bad = np.flatnonzero(~np.all(np.isfinite(a), axis=1))
-            if bad.size:
-                raise SolverError(f"{what} of contacts {describe_ids(bad)} are NaN or infinite", contacts=bad)
-        length = np.linalg.norm(N, axis=1)
-        bad = np.flatnonzero(length == 0)
-        if bad.size:
-            raise SolverError(f"target normals of contacts {describe_ids(bad)} are zero", contacts=bad)
         self.hand_points = hand_points
-        self.target_points = T
-        self.target_normals = N / length[:, None]
+        self.target_points, self.target_normals = _targets(len(hand_points), target_points, target_normals)
         self.weights = weights if weights is not None else Weights()
         if not isinstance(self.weights, Weights):
             raise SolverError(f"weights must be a solver.Weights, got {type(self.weights).__name__}")
         self.prior = rig.rest if prior is None else rig.check_theta(prior, "prior")
         self.keyed = None if keyed is None else rig.check_theta(keyed, "keyed")
-        if gradient not in GRADIENTS:
-            raise SolverError(f"gradient must be one of {', '.join(GRADIENTS)}, got {gradient!r}")
-        if norm not in NORMS:
-            raise SolverError(f"norm must be one of {', '.join(NORMS)}, got {norm!r}")
-        squares = norm == "squared" and gradient == "analytic"
-        if algorithm is None:
-            algorithm = TRUST_REGION if squares else "slsqp"
-        if algorithm == TRUST_REGION and not squares:
-            raise SolverError(
-                f"the {TRUST_REGION} algorithm needs norm='squared' and the analytic gradient; use one of "
-                f"{', '.join(ALGORITHMS)}"
-            )
-        if algorithm != TRUST_REGION and algorithm not in ALGORITHMS:
-            raise SolverError(
-                f"unknown algorithm {algorithm!r}; use {TRUST_REGION} or one of {', '.join(ALGORITHMS)}"
-            )
-        self.patch_names, self.patch_of = _patches(patches, k)
-        self.algorithm, self.gradient, self.norm = algorithm, gradient, norm
+        self.algorithm, self.gradient, self.norm = _method(algorithm, gradient, norm)
+        self.patch_names, self.patch_of = _patches(patches, len(hand_points))
         self.unit = hand.size / UNITS_PER_SIZE if unit is None else float(unit)
         if not (np.isfinite(self.unit) and self.unit > 0):
             raise SolverError(f"unit must be a positive length, got {unit!r}")
