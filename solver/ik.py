@@ -109,6 +109,9 @@ STOPPED_SHORT = (
 )
 #: Default stopping rule: relative change of the energy, and a cap on objective evaluations.
 FTOL_REL = 1e-9
+#: The trust region's: its Gauss-Newton steps settle in few evaluations, and a tighter rule only buys
+#: tiny steps on the keep-out's stiff walls.
+TRUST_REGION_FTOL = 1e-6
 #: How the objective's gradient is computed.
 GRADIENTS = ("analytic", "finite-difference", "central-difference")
 MAX_EVALUATIONS = 2000
@@ -558,7 +561,7 @@ class ContactIK:
         free=None,
         progress: Callable[[Progress], bool | None] | None = None,
         max_evaluations: int = MAX_EVALUATIONS,
-        ftol_rel: float = FTOL_REL,
+        ftol_rel: float | None = None,
         start: str = "auto",
     ) -> SolveResult:
         """Minimize the energy from θ0 over the free DOFs.
@@ -575,8 +578,9 @@ class ContactIK:
             energy); returning True cancels the solve, which then returns the best pose found so far.
         max_evaluations : int
             For the whole solve, its start included.
-        ftol_rel : float
-            Stop when an evaluation improves the energy by less than this fraction.
+        ftol_rel : float, optional
+            Stop when an evaluation improves the energy by less than this fraction (default
+            :data:`TRUST_REGION_FTOL` for the trust region, :data:`FTOL_REL` for NLopt's algorithms).
         start : str
             One of :data:`STARTS`: from θ0 (``"local"``), from the grasp the contacts imply
             (``"global"``, :mod:`solver.start`; with the :data:`TRUST_REGION` algorithm and a free root),
@@ -587,9 +591,11 @@ class ContactIK:
         SolveResult
         """
         clock = time.perf_counter()
+        if ftol_rel is None:
+            ftol_rel = TRUST_REGION_FTOL if self.algorithm == TRUST_REGION else FTOL_REL
         result = self._solve(theta0, free, progress, max_evaluations, ftol_rel, start)
         if len(result.unreached) > 1 and result.status != "cancelled":
-            why = self._out_of_reach(result, free)
+            why = self._out_of_reach(result, free, ftol_rel)
             result = replace(result, out_of_reach=why, seconds=time.perf_counter() - clock)
         return result
 
@@ -641,13 +647,15 @@ class ContactIK:
             start=mode,
         )
 
-    def _out_of_reach(self, result: SolveResult, free) -> tuple[str, ...]:
+    def _out_of_reach(self, result: SolveResult, free, ftol_rel: float) -> tuple[str, ...]:
         """The patch that keeps the others from touching (see :attr:`SolveResult.out_of_reach`): each
         unreached patch in turn, farthest first, left out of a local solve from the result's pose; the
         first whose absence lets every other patch touch, else all the unreached."""
         for name in sorted(result.unreached, key=result.gaps.get, reverse=True):
             others = self._without(self.patch_names.index(name))
-            if not others._solve(result.theta, free, None, MAX_EVALUATIONS, FTOL_REL, "local").unreached:
+            if not others._solve(
+                result.theta, free, None, MAX_EVALUATIONS, TRUST_REGION_FTOL, "local"
+            ).unreached:
                 return (name,)
         return result.unreached
 
