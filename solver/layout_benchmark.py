@@ -126,13 +126,22 @@ class LayoutRow:
         return 100.0 * self.success / self.layouts if self.layouts else float("nan")
 
 
-def _solve(layout: Layout, theta0=None) -> SolveResult:
-    """The solve a user's script makes of a layout: every argument at its default but the object."""
+#: How a layout is solved: as a user's script solves it (every argument at its default but the object), or
+#: as Contact Edit solves (NLopt's SLSQP, locally from the given pose).
+SOLVES = ("default", "paper")
+
+
+def _solve(layout: Layout, theta0=None, solve: str = "default") -> SolveResult:
+    """A solve of a layout (see :data:`SOLVES`), from rest or from θ0."""
+    if solve == "paper":
+        ik = ContactIK(layout.hand, layout.points, layout.positions, layout.normals, keep_out=layout.sdf,
+                       algorithm="slsqp")  # fmt: skip
+        return ik.solve(theta0, start="local")
     ik = ContactIK(layout.hand, layout.points, layout.positions, layout.normals, keep_out=layout.sdf)
     return ik.solve() if theta0 is None else ik.solve(theta0=theta0)
 
 
-def trial(hand_label: str, layout: Layout, seed=0) -> Trial:
+def trial(hand_label: str, layout: Layout, seed=0, solve: str = "default") -> Trial:
     """Solve ``layout`` from rest, judge it, then turn a touching pad (seeded choice) by
     :data:`EDIT_DEGREES`, re-solve from the solved pose and judge the edit.
 
@@ -143,20 +152,22 @@ def trial(hand_label: str, layout: Layout, seed=0) -> Trial:
     layout : Layout
     seed : int or sequence of int
         Seeds the choice of the pad to turn.
+    solve : str
+        One of :data:`SOLVES`.
 
     Returns
     -------
     Trial
     """
     hand = layout.hand
-    result = _solve(layout)
+    result = _solve(layout, solve=solve)
     verdict = judge(hand, result.theta, layout)
     touching = np.flatnonzero(verdict.touching)
     edit = None
     if touching.size:
         pad = int(np.random.default_rng(seed).choice(touching))
         edited = turned(layout, pad, EDIT_DEGREES)
-        again = _solve(edited, theta0=result.theta)
+        again = _solve(edited, theta0=result.theta, solve=solve)
         after = judge(hand, again.theta, edited)
         edit = Edit(pad, again, after, judge_edit(hand, verdict, after, layout.palm))
     return Trial(hand_label, layout, result, verdict, edit)
@@ -256,6 +267,7 @@ def run(
     objects: Sequence[str] = tuple(OBJECTS),
     bins: Sequence[tuple[float, float]] = BINS,
     others: Mapping[str, tuple[SkinnedMesh, str]] | None = None,
+    solve: str = "default",
 ) -> list[LayoutRow]:
     """Solve person-like layouts from rest for each hand and bin, edit each, and tabulate.
 
@@ -275,6 +287,8 @@ def run(
     others : mapping, optional
         More hands by label: ``(skin, kind)``, a skin of the procedural ``kind``'s mesh (a Rigify rig
         skinning it), given that kind's layouts (:func:`solver.layouts.on_hand`).
+    solve : str
+        One of :data:`SOLVES`: the default solve, or Contact Edit's for comparison.
 
     Returns
     -------
@@ -283,6 +297,8 @@ def run(
         grips skipped for want of pads.
     """
     say = progress or (lambda _line: None)
+    if solve not in SOLVES:
+        raise SolverError(f"solve must be one of {', '.join(SOLVES)}, got {solve!r}")
     if int(per_bin) < 1:
         raise SolverError(f"per_bin must be at least 1, got {per_bin!r}")
     unknown = [k for k in kinds if k not in KINDS]
@@ -296,7 +312,7 @@ def run(
         layouts, skipped = layouts_for(hand, kind, objects, bins, int(per_bin), seed)
         trials = []
         for n, layout in enumerate(layouts):
-            trials.append(trial(label, layout, seed=[seed, n]))
+            trials.append(trial(label, layout, seed=[seed, n], solve=solve))
             say(_describe(trials[-1]))
         mine = rows_of(trials, bins) if trials else []
         if skipped and mine:

@@ -4,6 +4,9 @@ Subcommands:
 
 * ``bench geodesics`` — time the geodesic core side by side with potpourri3d and pygeodesic.
 * ``bench contacts`` — time the contact model (parameterize, edits, transfer, atlas).
+* ``bench layouts`` — solve the layouts a person makes (pads slid by eye, the object carried away and
+  turned), then edit one pad; success per bin of turn, flips and seconds (``--paper`` for Contact Edit's
+  solve beside it).
 * ``bench solver`` — time contact IK (analytic against finite-difference gradients, NLopt's optimizers
   side by side) and the flex-to-contact grasp.
 * ``bench rigs`` — contact IK on a Rigify hand (through its controls, constraints and B-Bones) beside the
@@ -209,6 +212,13 @@ def _bench(args: argparse.Namespace) -> int:
 
         with quiet_stdout(not args.debug):
             rows = operator_benchmark.run(repeat=args.repeat, progress=_progress)
+    elif args.target == "layouts":
+        from solver import layout_benchmark
+
+        solve = "paper" if args.paper else "default"
+        rows = layout_benchmark.run(per_bin=args.per_bin, progress=_progress, solve=solve)
+        print(layout_benchmark.format_table(rows))
+        return 0
     elif args.target == "tangible":
         from tangible import benchmark as tangible_benchmark
 
@@ -508,12 +518,18 @@ def _bench_parser(command: _Subcommand) -> None:
     )
     bench.add_argument(
         "target",
-        choices=["geodesics", "contacts", "solver", "rigs", "operators", "tangible", "retarget"],
+        choices=["geodesics", "contacts", "solver", "layouts", "rigs", "operators", "tangible", "retarget"],
         help="what to benchmark",
     )
     bench.add_argument("--repeat", type=int, default=7, help="runs per timing (the median is shown)")
     bench.add_argument("--rays", type=int, default=2000, help="geodesics: rays / targets per query")
     bench.add_argument("--frames", type=int, default=1000, help="retarget: frames of the motion")
+    bench.add_argument("--per-bin", type=int, default=1, help="layouts: layouts per object and bin of turn")
+    bench.add_argument(
+        "--paper",
+        action="store_true",
+        help="layouts: solve as Contact Edit does (SLSQP from rest), to compare",
+    )
     bench.set_defaults(run=_bench)
 
 
