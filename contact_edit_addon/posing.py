@@ -14,7 +14,17 @@ import bpy
 import numpy as np
 
 from geodesics import ContactError, SurfacePoints, TriMesh
-from solver import ContactIK, GraspResult, Hand, MeshSDF, SolverError, SolveResult, Weights, grasp
+from solver import (
+    TOUCH_DISTANCE,
+    ContactIK,
+    GraspResult,
+    Hand,
+    MeshSDF,
+    SolverError,
+    SolveResult,
+    Weights,
+    grasp,
+)
 
 from . import bridge, store
 
@@ -25,6 +35,19 @@ STAGES = (
     ("ALL", "All controls", "The hand's root control and every control under the hand root"),
     ("SELECTED", "Selected controls", "Only the controls selected in Pose Mode"),
 )
+#: Where a solve starts (:data:`solver.ik.STARTS`), as the Solve operator offers it.
+STARTS = (
+    (
+        "AUTO",
+        "Auto",
+        "From the grasp the contacts imply when the hand is far from them, else from the hand's pose "
+        "(an edit of a solved layout stays near)",
+    ),
+    ("FRESH", "Fresh", "From the grasp the contacts imply, wherever the hand is (it may turn and travel)"),
+    ("POSE", "From the pose", "From the hand's pose only, as Contact Edit solves"),
+)
+#: The solver's name for each start.
+START_MODES = {"AUTO": "auto", "FRESH": "global", "POSE": "local"}
 
 
 @dataclass(frozen=True)
@@ -194,11 +217,6 @@ def length_text(scene: bpy.types.Scene, value: float) -> str:
     return bpy.utils.units.to_string(units.system, "LENGTH", value * units.scale_length, precision=3)
 
 
-#: A hand patch touches when one of its contacts is this close to its target on the object's surface, in
-#: units u of the hand's size (:attr:`solver.ContactIK.unit`; 1 mm on a life-size hand).
-TOUCH_DISTANCE = 0.1
-
-
 @dataclass(frozen=True)
 class Touch:
     """How a solved pose meets the object, measured, never assumed.
@@ -219,12 +237,7 @@ class Touch:
 def touch(problem: Problem, theta) -> Touch:
     """Which paired hand patches the pose θ (d,) brings onto the object, and how deep it is inside."""
     scale = problem.world_scale
-    ends = np.cumsum(problem.sizes)
-    distances = problem.ik.distances(theta)
-    gaps = {
-        h: float(distances[end - size : end].min()) * scale
-        for (h, _), size, end in zip(problem.pairs, problem.sizes, ends, strict=True)
-    }
+    gaps = {h: gap * scale for h, gap in problem.ik.gaps(theta).items()}
     tolerance = TOUCH_DISTANCE * problem.ik.unit * scale
     deepest = None
     if problem.solid is not None:
@@ -257,6 +270,10 @@ def summary(scene: bpy.types.Scene, problem: Problem, result: SolveResult, outco
             if met.deepest > 0
             else f"no skin inside '{problem.target}'"
         )
+    if len(result.out_of_reach) == 1 and len(problem.pairs) > 1:
+        (name,) = result.out_of_reach
+        gap = length_text(scene, result.gaps[name] * problem.world_scale)
+        clauses.append(f"{name} cannot be reached with the others: it stays {gap} off")
     clauses.append(
         f"{result.iterations} evaluations in {result.seconds:.2f} s, {OUTCOMES[outcome or result.status]}"
     )

@@ -17,12 +17,13 @@ from . import hands, objects, rotations
 from .errors import SolverError
 from .grasp import GraspResult, flex_to_contact, grasp, in_palm, palm_centre, placement
 from .hands import Hand
-from .ik import KEEP_OUT_WEIGHT, ContactIK, Markers, Progress, SolveResult, Weights
+from .ik import KEEP_OUT_WEIGHT, TOUCH_DISTANCE, ContactIK, Markers, Progress, SolveResult, Weights
 from .rig import Armature, ControlRig, Kinematics, Plan, Rig, SkinnedMesh, normalize_vertex_groups
 from .sdf import Box, HalfSpace, MeshSDF
 
 __all__ = [
     "KEEP_OUT_WEIGHT",
+    "TOUCH_DISTANCE",
     "Armature",
     "Box",
     "ContactIK",

@@ -243,6 +243,33 @@ def test_solve_operator_recovers_a_pose_and_keys_it(tmp_path):
     assert out["keyed"] == [12.0]
 
 
+def test_a_fresh_solve_starts_from_the_grasp_and_names_a_patch_out_of_reach(tmp_path):
+    """Start FRESH solves from the grasp the contacts imply (the root free to travel): it recovers the
+    mould's pose; without the root free it says why; a summary names the patch the others keep out of
+    reach, and how far."""
+    out = run_blender(
+        """
+        from dataclasses import replace
+        finished = bpy.ops.contact_edit.solve(stage="ALL", start="FRESH")
+        vertices = np.concatenate([np.unique(kit.mesh.faces[kit.palmar_faces(kit.rig.bone_index(b))])
+                                   for b in ("index_3", "thumb_3", "hand", "pinky_2")])
+        gap = np.linalg.norm(world_vertices(hand)[vertices] - cast[vertices], axis=1)
+        error = error_of(lambda: bpy.ops.contact_edit.solve(stage="FINGERS", start="FRESH"))
+        problem = posing.problem(scene)
+        solved = problem.ik.solve(problem.theta0, start="local", max_evaluations=1)
+        far = replace(solved, out_of_reach=("thumb_3",), gaps={**solved.gaps, "thumb_3": 0.0123})
+        result(dict(finished=list(finished), mean_gap=gap.mean(), length=kit.length, error=error,
+                    summary=posing.summary(scene, problem, far)))
+        """,
+        tmp_path,
+        setup=SETUP + MOULD,
+    )
+    assert out["finished"] == ["FINISHED"]
+    assert out["mean_gap"] < 0.01 * out["length"]
+    assert "global start needs" in out["error"] and "root free to move" in out["error"]
+    assert "thumb_3 cannot be reached with the others: it stays 1.23 cm off" in out["summary"]
+
+
 def test_staged_solve_moves_only_what_the_stage_frees(tmp_path):
     out = run_blender(
         """

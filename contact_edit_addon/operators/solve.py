@@ -36,6 +36,7 @@ class CONTACT_EDIT_OT_solve(Background, HotkeyTool, bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     stage: bpy.props.EnumProperty(name="Solve", items=posing.STAGES, default="ALL")
+    start: bpy.props.EnumProperty(name="Start", items=posing.STARTS, default="AUTO")
     keyframe: bpy.props.BoolProperty(name="Keyframe", description="Key the solved pose on the current frame")
     max_evaluations: bpy.props.IntProperty(
         name="Evaluations", default=2000, min=1, description="Stop after this many energy evaluations"
@@ -61,8 +62,10 @@ class CONTACT_EDIT_OT_solve(Background, HotkeyTool, bpy.types.Operator):
             better = feed.latest is None or step.energy < feed.latest.energy
             return feed.report(step.iteration, step if better else None)
 
+        start = posing.START_MODES[self.start]
+
         def work():
-            return problem.ik.solve(problem.theta0, problem.free, progress, limit)
+            return problem.ik.solve(problem.theta0, problem.free, progress, limit, start=start)
 
         def commit(context, result) -> set:
             kept = feed.stopped and result.status == "cancelled"  # Esc: the best pose so far
