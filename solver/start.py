@@ -45,7 +45,8 @@ def grasp_start(ik, theta: np.ndarray, index: np.ndarray, descend: Descend, judg
     (n,) from θ (d,), found as the module docstring says; θ itself when the root is not free.
 
     ``descend`` solves some DOFs without the solids' terms, ``judge`` gives a pose's full energy (and
-    reports it as progress); the start with the lower energy is returned.
+    reports it as progress, after each root fit too, so that a viewer sees the hand reach its contacts at
+    once); the start with the lower energy is returned.
     """
     rig = ik.hand.rig
     root = index[rig.dof_bone[index] == 0]
@@ -63,6 +64,7 @@ def grasp_start(ik, theta: np.ndarray, index: np.ndarray, descend: Descend, judg
     for t in starts:
         for _ in range(ROUNDS):
             t = _root_fit(ik, t, root, weights)
+            judge(t)  # the hand laid onto its contacts: a better pose to show at once
             if fingers.size:
                 t = descend(t, fingers, FINGER_EVALUATIONS)
         energy = judge(t)
