@@ -653,9 +653,7 @@ class ContactIK:
         first whose absence lets every other patch touch, else all the unreached."""
         for name in sorted(result.unreached, key=result.gaps.get, reverse=True):
             others = self._without(self.patch_names.index(name))
-            if not others._solve(
-                result.theta, free, None, MAX_EVALUATIONS, TRUST_REGION_FTOL, "local"
-            ).unreached:
+            if not others._solve(result.theta, free, None, MAX_EVALUATIONS, ftol_rel, "local").unreached:
                 return (name,)
         return result.unreached
 
