@@ -221,7 +221,7 @@ def length_text(scene: bpy.types.Scene, value: float) -> str:
 class Touch:
     """How a solved pose meets the object, measured, never assumed.
 
-    ``gaps`` holds each paired hand patch's closest contact distance to its target (scene units),
+    ``gaps`` holds each paired hand patch's median contact distance to its targets (scene units),
     ``touching`` the patches whose gap is within ``tolerance``; ``deepest`` is how far the deepest
     vertex of the hand's skin is inside the object (0 when none is; None for an open object, which
     has no inside). Between vertices a face can cut a sharp edge of the object (a mug's rim) a little

@@ -89,16 +89,22 @@ ALGORITHMS = {
 #: method (:mod:`solver.least_squares`); it needs the squared norm and the analytic derivatives.
 TRUST_REGION = "trust-region"
 #: Where :meth:`ContactIK.solve` starts: ``"local"`` from the given pose, ``"global"`` from the grasp the
-#: contacts imply (:func:`solver.start.grasp_start`), ``"auto"`` the first when every patch but one has
-#: a contact within :data:`EDIT_REACH` of its target at the given pose (an edit of a solved layout: one
-#: patch moved or turned), else the second.
+#: contacts imply (:func:`solver.start.grasp_start`), ``"auto"`` the first when every patch but one is
+#: within :data:`EDIT_REACH` of its targets at the given pose (an edit of a solved layout: one patch
+#: moved or turned), else the second.
 STARTS = ("auto", "local", "global")
-#: A patch still meets its targets, for ``start="auto"``, within this many units u (5 mm on a life-size
-#: hand).
+#: A patch still meets its targets, for ``start="auto"``, when its contacts' median distance to them is
+#: within this many units u (5 mm on a life-size hand).
 EDIT_REACH = 0.5
-#: A patch touches when one of its contacts is this close to its target, in units u (2 mm on a life-size
-#: hand); :attr:`SolveResult.unreached` names the patches that do not.
+#: A patch touches when its contacts' median distance to their targets is at most this, in units u (2 mm
+#: on a life-size hand); :attr:`SolveResult.unreached` names the patches that do not.
 TOUCH_DISTANCE = 0.2
+#: A patch a solve leaves short of touching weighs this many times more in the next round of pressing
+#: (:meth:`ContactIK._pressed`), of at most :data:`PRESS_ROUNDS`.
+PRESS_FACTOR = 10.0
+PRESS_ROUNDS = 2
+#: Evaluations of each round of pressing: it starts near its end.
+PRESS_EVALUATIONS = 100
 #: What NLopt raises when it stops short of convergence (roundoff, or its generic failure). Its 2.9
 #: wheels, which the extension bundles, raise the generic failure as their own ``nlopt.runtime_error``
 #: (not a RuntimeError; nor can it be pickled, so a worker process could not even report it).
@@ -199,8 +205,8 @@ class SolveResult:
         or ``"unchanged"`` (the optimizer found nothing better than the start, to ``ftol_rel``: a solve
         that moved nothing never reports convergence).
     gaps : dict
-        Per contact patch (``ContactIK(patches=...)``, else one patch ``"contacts"``), the distance of its
-        closest contact from its target (scene units).
+        Per contact patch (``ContactIK(patches=...)``, else one patch ``"contacts"``), the median
+        distance of its contacts from their targets (scene units).
     unreached : tuple of str
         The patches whose gap is above :data:`TOUCH_DISTANCE`: those the pose does not bring onto the
         object.
@@ -294,6 +300,19 @@ def _patches(patches, k: int) -> tuple[tuple[str, ...], np.ndarray]:
     return names, np.repeat(np.arange(len(names)), counts)
 
 
+def _contact_weights(values, k: int) -> np.ndarray:
+    """(k,) the contacts' weight factors, checked (default ones)."""
+    if values is None:
+        return np.ones(k)
+    c = np.array(values, dtype=np.float64).reshape(-1)
+    if c.size != k:
+        raise SolverError(f"contact_weights must give one factor per contact ({k}), got {c.size}")
+    bad = np.flatnonzero(~(np.isfinite(c) & (c >= 0)))
+    if bad.size:
+        raise SolverError(f"contact_weights of contacts {describe_ids(bad)} are not finite and non-negative")
+    return c
+
+
 def free_dofs(rig, free=None) -> np.ndarray:
     """(k,) indices of the DOFs a solve may change: those flagged in ``free`` ((d,) bool; default all)
     that the rig does not lock. Raises SolverError for a mask of another length."""
@@ -335,8 +354,10 @@ class ContactIK:
         :data:`ALGORITHMS` (the default otherwise: ``"slsqp"``).
     patches : sequence of (str, int), optional
         The contacts' patches, in order: names and how many consecutive contacts each holds (default:
-        one patch ``"contacts"``). A global start weighs each patch alike, and the result names the
-        patches it does not bring onto the object.
+        one patch ``"contacts"``). A global start weighs each patch alike, the solve presses a patch
+        left short of touching, and the result names the patches it does not bring onto the object.
+    contact_weights : (k,) array_like, optional
+        Per contact, a non-negative factor on its λd and λn (default 1): some contacts matter more.
     gradient : str
         ``"analytic"``, or for comparison with the papers (which used finite differences)
         ``"finite-difference"`` (forward: one energy evaluation per free DOF) or ``"central-difference"``
@@ -369,6 +390,7 @@ class ContactIK:
         gradient: str = "analytic",
         norm: str = "squared",
         patches=None,
+        contact_weights=None,
     ):
         if not isinstance(hand, SkinnedMesh):
             raise SolverError(
@@ -389,6 +411,7 @@ class ContactIK:
         self.keyed = None if keyed is None else rig.check_theta(keyed, "keyed")
         self.algorithm, self.gradient, self.norm = _method(algorithm, gradient, norm)
         self.patch_names, self.patch_of = _patches(patches, len(hand_points))
+        self.contact_weights = _contact_weights(contact_weights, len(hand_points))
         self.unit = hand.size / UNITS_PER_SIZE if unit is None else float(unit)
         if not (np.isfinite(self.unit) and self.unit > 0):
             raise SolverError(f"unit must be a positive length, got {unit!r}")
@@ -446,11 +469,12 @@ class ContactIK:
         grad = np.zeros(rig.n_dofs)
         contacts = skin.sets[0]
         p, n, aux = contacts.geometry(V)
-        value, d_diff = self._distance_term(p - self.target_points)
+        c = self.contact_weights
+        value, d_diff = self._distance_term(p - self.target_points, c)
         terms["distance"] = w.d * value
-        terms["normal"] = w.n * float(np.sum(1.0 + np.einsum("ki,ki->k", n, self.target_normals)))
+        terms["normal"] = w.n * float(c @ (1.0 + np.einsum("ki,ki->k", n, self.target_normals)))
         if with_gradient:
-            adjoint += contacts.adjoint(n, aux, w.d * d_diff, w.n * self.target_normals)
+            adjoint += contacts.adjoint(n, aux, w.d * d_diff, w.n * c[:, None] * self.target_normals)
         if self.markers is not None:
             markers = skin.sets[1]
             q, qn, qaux = markers.geometry(V)
@@ -478,13 +502,15 @@ class ContactIK:
         grad += skin.vertices.vjp(kin, adjoint)
         return energy, terms, grad
 
-    def _distance_term(self, diff: np.ndarray) -> tuple[float, np.ndarray]:
-        """The unweighted sum over rows of ``diff`` (k, 3) in the chosen norm, and its gradient (k, 3)."""
+    def _distance_term(self, diff: np.ndarray, factors=None) -> tuple[float, np.ndarray]:
+        """The sum over rows of ``diff`` (k, 3) in the chosen norm, each row times its factor (k,)
+        (default 1), and its gradient (k, 3)."""
         u2 = self.unit**2
+        c = np.ones(len(diff)) if factors is None else factors
         if self.norm == "squared":
-            return float(np.sum(diff**2)) / u2, 2.0 / u2 * diff
+            return float(c @ np.einsum("ki,ki->k", diff, diff)) / u2, (2.0 / u2 * c)[:, None] * diff
         r = np.sqrt(np.einsum("ki,ki->k", diff, diff) / u2 + L2_SMOOTHING**2)
-        return float(np.sum(r - L2_SMOOTHING)), diff / (u2 * r[:, None])
+        return float(c @ (r - L2_SMOOTHING)), diff * (c / (u2 * r))[:, None]
 
     def residuals(self, theta, dofs=None, solids: bool = True) -> tuple[np.ndarray, np.ndarray, float, dict]:
         """The energy as a sum of squares (norm ``"squared"``): residuals r (m,), their Jacobian (m, n)
@@ -504,21 +530,24 @@ class ContactIK:
         V = skin.vertices.positions(kin)
         rows_r, rows_J, terms = [], [], {}
 
-        def points(point_set, targets, normals, w_p, w_n):
+        def points(point_set, targets, normals, w_p, w_n, c):
             p, n, aux = point_set.geometry(V)
             dp, dn = point_set.jacobian(n, aux, skin.vertices.jacobian(kin, point_set.rows)[:, :, index])
-            rows_r.append((np.sqrt(w_p) / u * (p - targets)).ravel())
-            rows_J.append(np.sqrt(w_p) / u * dp.reshape(-1, index.size))
+            s = np.sqrt(c)[:, None]
+            rows_r.append((np.sqrt(w_p) / u * s * (p - targets)).ravel())
+            rows_J.append(np.sqrt(w_p) / u * (s[:, :, None] * dp).reshape(-1, index.size))
             if normals is not None:
-                rows_r.append((np.sqrt(w_n / 2) * (n + normals)).ravel())
-                rows_J.append(np.sqrt(w_n / 2) * dn.reshape(-1, index.size))
+                rows_r.append((np.sqrt(w_n / 2) * s * (n + normals)).ravel())
+                rows_J.append(np.sqrt(w_n / 2) * (s[:, :, None] * dn).reshape(-1, index.size))
             return p, n
 
-        p, n = points(skin.sets[0], self.target_points, self.target_normals, w.d, w.n)
-        terms["distance"] = w.d * float(np.sum((p - self.target_points) ** 2)) / u**2
-        terms["normal"] = w.n * float(np.sum(1.0 + np.einsum("ki,ki->k", n, self.target_normals)))
+        c = self.contact_weights
+        p, n = points(skin.sets[0], self.target_points, self.target_normals, w.d, w.n, c)
+        terms["distance"] = w.d * float(c @ np.sum((p - self.target_points) ** 2, axis=1)) / u**2
+        terms["normal"] = w.n * float(c @ (1.0 + np.einsum("ki,ki->k", n, self.target_normals)))
         if self.markers is not None:
-            q, _ = points(skin.sets[1], self._marker_targets, None, w.m, 0.0)
+            ones = np.ones(len(self._marker_targets))
+            q, _ = points(skin.sets[1], self._marker_targets, None, w.m, 0.0, ones)
             terms["marker"] = w.m * float(np.sum((q - self._marker_targets) ** 2)) / u**2
         for name, weight, evaluate in self._solids if solids else ():
             rows = skin.extra_rows
@@ -544,9 +573,10 @@ class ContactIK:
         return np.concatenate(rows_r), np.concatenate(rows_J), float(sum(terms.values())), terms
 
     def gaps(self, theta) -> dict[str, float]:
-        """Per contact patch, the distance of its closest contact from its target at θ (d,)."""
+        """Per contact patch, the median distance of its contacts from their targets at θ (d,): how far
+        the patch as a whole is from touching (one contact touching does not make a pad touch)."""
         d = self.distances(theta)
-        return {name: float(d[self.patch_of == i].min()) for i, name in enumerate(self.patch_names)}
+        return {name: float(np.median(d[self.patch_of == i])) for i, name in enumerate(self.patch_names)}
 
     def distances(self, theta) -> np.ndarray:
         """(k,) distance of each posed hand point from its target at θ (d,)."""
@@ -563,6 +593,7 @@ class ContactIK:
         max_evaluations: int = MAX_EVALUATIONS,
         ftol_rel: float | None = None,
         start: str = "auto",
+        press: bool | None = None,
     ) -> SolveResult:
         """Minimize the energy from θ0 over the free DOFs.
 
@@ -575,7 +606,8 @@ class ContactIK:
             Staged solves: the root only first (``free = rig.dof_bone == 0``), then unlock more.
         progress : callable, optional
             Called with a :class:`Progress` after each evaluation (the best pose so far, by the whole
-            energy); returning True cancels the solve, which then returns the best pose found so far.
+            energy; while pressing, by the pressed energy); returning True cancels the solve, which then
+            returns the best pose found so far.
         max_evaluations : int
             For the whole solve, its start included.
         ftol_rel : float, optional
@@ -585,19 +617,70 @@ class ContactIK:
             One of :data:`STARTS`: from θ0 (``"local"``), from the grasp the contacts imply
             (``"global"``, :mod:`solver.start`; with the :data:`TRUST_REGION` algorithm and a free root),
             or the second when the hand is far from its contacts (``"auto"``).
+        press : bool, optional
+            Press the patches the solve leaves short of touching onto their targets (:meth:`_pressed`;
+            default: with the :data:`TRUST_REGION` algorithm). Off, the solve minimizes the energy of
+            the given weights alone (Contact Edit's Eq. 2 with ``start="local"`` and its weights).
 
         Returns
         -------
         SolveResult
+            Its energy and terms are those of the given weights, pressed or not.
         """
         clock = time.perf_counter()
         if ftol_rel is None:
             ftol_rel = TRUST_REGION_FTOL if self.algorithm == TRUST_REGION else FTOL_REL
-        result = self._solve(theta0, free, progress, max_evaluations, ftol_rel, start)
+        if press is None:
+            press = self.algorithm == TRUST_REGION
+        result = self._solve_pressed(theta0, free, progress, max_evaluations, ftol_rel, start, press)
         if len(result.unreached) > 1 and result.status != "cancelled":
-            why = self._out_of_reach(result, free, ftol_rel)
-            result = replace(result, out_of_reach=why, seconds=time.perf_counter() - clock)
+            why = self._out_of_reach(result, free, max_evaluations, ftol_rel, press)
+            result = replace(result, out_of_reach=why)
+        return replace(result, seconds=time.perf_counter() - clock)
+
+    def _solve_pressed(self, theta0, free, progress, max_evaluations, ftol_rel, start, press) -> SolveResult:
+        """:meth:`_solve`, then with ``press`` :meth:`_pressed`."""
+        result = self._solve(theta0, free, progress, max_evaluations, ftol_rel, start)
+        return self._pressed(result, free, progress, max_evaluations, ftol_rel) if press else result
+
+    def _pressed(self, result: SolveResult, free, progress, max_evaluations, ftol_rel) -> SolveResult:
+        """``result`` with the patches it leaves short of touching pressed onto their targets.
+
+        With a strong prior (Contact Edit's λp) and patches placed by eye, a patch's best compromise
+        may hover a few millimetres off the object: a curled finger's prior outweighs its last few
+        millimetres. A person asked for the patch to touch, so its contacts' weights grow by
+        :data:`PRESS_FACTOR` and the solve goes on from its pose, :data:`PRESS_ROUNDS` times at most,
+        each of at most :data:`PRESS_EVALUATIONS`, and kept only if it brings the patches nearer
+        touching in all (:meth:`_shortfall`) and leaves every patch that touched touching (a patch out of
+        reach must not drag the others off)."""
+        factors = self.contact_weights
+        for _ in range(PRESS_ROUNDS):
+            budget = min(int(max_evaluations) - result.iterations, PRESS_EVALUATIONS)
+            if not result.unreached or budget <= 0 or result.status in ("cancelled", "no free DOFs"):
+                break
+            short = np.isin(self.patch_of, [self.patch_names.index(name) for name in result.unreached])
+            factors = factors * np.where(short, PRESS_FACTOR, 1.0)
+            told = None if progress is None else _counting_on(progress, result.iterations)
+            more = self._subset(np.ones(len(factors), bool), factors)._solve(
+                result.theta, free, told, budget, ftol_rel, "local"
+            )
+            count = result.iterations + more.iterations
+            dropped = set(more.unreached) - set(result.unreached)
+            if dropped or self._shortfall(more.gaps) >= self._shortfall(result.gaps):
+                status = "cancelled" if more.status == "cancelled" else result.status
+                return replace(result, iterations=count, status=status)
+            energy, terms = self.energy(more.theta)
+            status = more.status if more.status in ("cancelled", "stopped") else result.status
+            result = replace(
+                more, energy=energy, terms=terms, iterations=count, status=status,
+                start_energy=result.start_energy, start=result.start,
+            )  # fmt: skip
         return result
+
+    def _shortfall(self, gaps: dict[str, float]) -> float:
+        """How far the patches are from touching in all: the sum of their gaps beyond
+        :data:`TOUCH_DISTANCE`."""
+        return float(sum(max(gap - TOUCH_DISTANCE * self.unit, 0.0) for gap in gaps.values()))
 
     def _solve(self, theta0, free, progress, max_evaluations, ftol_rel, start) -> SolveResult:
         """:meth:`solve`, the unreached patches left unexplained."""
@@ -647,26 +730,28 @@ class ContactIK:
             start=mode,
         )
 
-    def _out_of_reach(self, result: SolveResult, free, ftol_rel: float) -> tuple[str, ...]:
+    def _out_of_reach(self, result: SolveResult, free, max_evaluations, ftol_rel, press) -> tuple[str, ...]:
         """The patch that keeps the others from touching (see :attr:`SolveResult.out_of_reach`): each
-        unreached patch in turn, farthest first, left out of a local solve from the result's pose; the
-        first whose absence lets every other patch touch, else all the unreached."""
+        unreached patch in turn, farthest first, left out of a local solve from the result's pose (of at
+        most ``max_evaluations``); the first whose absence lets every other patch touch, else all the
+        unreached."""
         for name in sorted(result.unreached, key=result.gaps.get, reverse=True):
-            others = self._without(self.patch_names.index(name))
-            if not others._solve(result.theta, free, None, MAX_EVALUATIONS, ftol_rel, "local").unreached:
+            others = self._subset(self.patch_of != self.patch_names.index(name), self.contact_weights)
+            alone = others._solve_pressed(result.theta, free, None, max_evaluations, ftol_rel, "local", press)
+            if not alone.unreached:
                 return (name,)
         return result.unreached
 
-    def _without(self, patch: int) -> ContactIK:
-        """This problem with the contacts of one patch left out."""
-        keep = self.patch_of != patch
-        names = [n for i, n in enumerate(self.patch_names) if i != patch]
+    def _subset(self, keep: np.ndarray, factors: np.ndarray) -> ContactIK:
+        """This problem with only the contacts ``keep`` (k,) bool, weighted by ``factors`` (k,)."""
+        kept = np.unique(self.patch_of[keep])
         return ContactIK(
             self.hand, self.hand_points[np.flatnonzero(keep)], self.target_points[keep],
             self.target_normals[keep], self.weights, prior=self.prior, markers=self.markers,
             obstacle=self.obstacle, keep_out=self.keep_out, keyed=self.keyed, unit=self.unit,
             algorithm=self.algorithm, gradient=self.gradient, norm=self.norm,
-            patches=[(n, int(np.sum(self.patch_of == self.patch_names.index(n)))) for n in names],
+            patches=[(self.patch_names[i], int(np.sum(self.patch_of[keep] == i))) for i in kept],
+            contact_weights=factors[keep],
         )  # fmt: skip
 
     def _start_mode(self, start: str, theta: np.ndarray, index: np.ndarray) -> str:
@@ -719,6 +804,11 @@ class ContactIK:
         if outcome == "cancelled":
             raise _Cancelled
         return outcome if status else full(x)
+
+
+def _counting_on(progress: Callable[[Progress], bool | None], done: int) -> Callable[[Progress], bool | None]:
+    """``progress`` told of a later stage's evaluations, counted on from the ``done`` before it."""
+    return lambda step: progress(replace(step, iteration=step.iteration + done))
 
 
 class _Cancelled(Exception):

@@ -5,11 +5,13 @@ and every bin of the object's turn (:data:`solver.layouts.BINS`), ``per_bin`` se
 (:func:`solver.layouts.make_layout`: pads of a grip that exists, targets slid a few millimetres, the
 object carried away) are solved from the rest pose exactly as a user's script solves them::
 
-    ContactIK(hand, layout.points, layout.positions, layout.normals, keep_out=layout.sdf).solve()
+    ContactIK(hand, layout.points, layout.positions, layout.normals, keep_out=layout.sdf,
+              patches=pads).solve()
 
-with every other argument at the solve's default, so the same run measures whatever the solve does
-today and after it changes. Each pose is judged (:func:`solver.layouts.judge`: every pad's median
-distance to the surface within 2 mm, to its patch within 8 mm, no skin more than 1 mm inside). Then one
+with every other argument at the solve's default (the pads named, as the add-on names its patches), so
+the same run measures whatever the solve does today and after it changes. Each pose is judged
+(:func:`solver.layouts.judge`: every pad's median distance to the surface within 2 mm, to its patch
+within 8 mm, no skin more than 1 mm inside). Then one
 pad that touches (a seeded choice) is turned 25° on the surface (:func:`solver.layouts.turned`) and the
 layout re-solved from the solved pose, ``solve(theta0=...)``: the edit *flips* the hand when the palm
 turns by more than 30° or a pad that touched no longer does (:func:`solver.layouts.judge_edit`).
@@ -136,8 +138,11 @@ def _solve(layout: Layout, theta0=None, solve: str = "default") -> SolveResult:
     if solve == "paper":
         ik = ContactIK(layout.hand, layout.points, layout.positions, layout.normals, keep_out=layout.sdf,
                        algorithm="slsqp")  # fmt: skip
-        return ik.solve(theta0, start="local")
-    ik = ContactIK(layout.hand, layout.points, layout.positions, layout.normals, keep_out=layout.sdf)
+        return ik.solve(theta0, start="local", press=False)
+    counts = np.bincount(layout.pad_index, minlength=len(layout.pads)).tolist()
+    patches = list(zip(layout.pads, counts, strict=True))
+    ik = ContactIK(layout.hand, layout.points, layout.positions, layout.normals, keep_out=layout.sdf,
+                   patches=patches)  # fmt: skip
     return ik.solve() if theta0 is None else ik.solve(theta0=theta0)
 
 

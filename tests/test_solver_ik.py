@@ -78,6 +78,7 @@ def test_every_term_has_the_exact_gradient(hand, term, obstacle):
         obstacle=table,
         keep_out=MeshSDF(ball),
         keyed=truth,
+        contact_weights=np.random.default_rng(3).uniform(0.2, 3.0, len(points)),  # some matter more
     )
     for trial in range(3):
         noise = rng.normal(size=truth.size) * np.where(hand.rig.is_rotation, 0.2, 0.01)
@@ -98,6 +99,7 @@ def test_residuals_are_the_energy_as_a_sum_of_squares(hand, term):
     ik = ContactIK(
         hand, points, P, N, ONLY[term], prior=0.1 * truth, markers=Markers(points[::7], P[::7] + 0.01),
         obstacle=HalfSpace(point=[0, 0, -0.01], normal=[0.1, 0.2, 1.0]), keep_out=MeshSDF(ball), keyed=truth,
+        contact_weights=np.random.default_rng(3).uniform(0.2, 3.0, len(points)),
     )  # fmt: skip
     rng = np.random.default_rng(7)  # the pose of the gradient test's first trial: some skin in the ball
     noise = rng.normal(size=truth.size) * np.where(hand.rig.is_rotation, 0.2, 0.01)

@@ -7,14 +7,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from geodesics import SurfacePoints, TriMesh
+from geodesics import TriMesh
 from solver import ContactIK, MeshSDF, SolverError, hands, objects
-from solver.grasp import grasp, in_palm
+from solver.layouts import BINS, judge, known_grip, make_layout
 from solver.least_squares import compressed
 from solver.sdf import NarrowBand
-
-#: The pads a person would place for the grasp: the palm and the tips of the thumb and two fingers.
-PADS = ("hand", "thumb_3", "index_3", "middle_3")
 
 
 def test_the_compressed_system_has_the_full_systems_cost_gradient_and_model():
@@ -65,23 +62,29 @@ def test_the_narrow_band_gives_the_bands_penetration_without_querying_far_skin()
 
 
 def _layout(angle_degrees: float, shift: float, seed: int = 0):
-    """A grasp that exists (the fingers wrapped around a cylinder by flex-to-contact), its pads' closest
-    points on the cylinder as targets, the cylinder and targets then carried away by a rigid motion."""
+    """A grasp that exists (the fingers wrapped around a cylinder by flex-to-contact), the pads a person
+    would paint on it (:func:`solver.layouts.known_grip`: the parts of the fingertips that touch), their
+    closest points on the cylinder as targets, the cylinder and targets then carried away by a rigid
+    motion."""
     hand = hands.make_hand("human")
-    cylinder = in_palm(hand, objects.cylinder(0.03))
-    grip = grasp(hand, cylinder, curl="in turn")
-    patches = hand.contact_patches(30, seed=0)
-    points = SurfacePoints.concatenate([patches[name] for name in PADS])
+    grip = known_grip(hand, "cylinder")
     rng = np.random.default_rng(seed)
     axis = rng.normal(size=3)
     R = Rotation.from_rotvec(np.radians(angle_degrees) * axis / np.linalg.norm(axis)).as_matrix()
     t = shift * np.array([1.0, -0.5, 0.3])
-    moved = TriMesh(cylinder.vertices @ R.T + t, cylinder.faces)
+    moved = TriMesh(grip.object.vertices @ R.T + t, grip.object.faces)
     solid = MeshSDF(moved)
-    posed, _ = hand.posed_points(grip.theta, points)
+    posed, _ = hand.posed_points(grip.theta, grip.points)
     _, targets, faces = solid.query(posed @ R.T + t)
-    patches_of = [(name, len(patches[name])) for name in PADS]
-    return hand, points, targets, moved.face_normals[faces], solid, patches_of
+    patches = list(zip(grip.pads, np.bincount(grip.pad_index).tolist(), strict=True))
+    return hand, grip.points, targets, moved.face_normals[faces], solid, patches
+
+
+def _contacts_of(patches, name: str) -> slice:
+    """The contacts of the patch ``name`` among ``patches`` ((name, count) in order)."""
+    names = [n for n, _ in patches]
+    first = sum(n for _, n in patches[: names.index(name)])
+    return slice(first, first + patches[names.index(name)][1])
 
 
 @pytest.fixture(scope="module")
@@ -95,11 +98,14 @@ def test_a_global_start_reaches_the_grasp_the_hand_must_travel_and_turn_to(far):
     ik = ContactIK(hand, points, targets, normals, keep_out=solid, patches=patches)
     result = ik.solve()
     assert result.start == "global" and result.status == "converged"
-    assert result.unreached == () and max(result.gaps.values()) < 0.002
+    assert result.unreached == ()
+    on_surface = np.abs(solid(hand.posed_points(result.theta, points)[0]))
+    pad = np.repeat(np.arange(len(patches)), [n for _, n in patches])
+    assert max(np.median(on_surface[pad == i]) for i in range(len(patches))) < 0.002  # every pad touches
     assert -solid(hand.posed_vertices(result.theta)).min() < 0.001  # no skin a millimetre inside
     local = ContactIK(hand, points, targets, normals, keep_out=solid, patches=patches, algorithm="slsqp")
-    stuck = local.solve(start="local", max_evaluations=400)  # Contact Edit's solve, from the open hand
-    assert len(stuck.unreached) >= 2 and stuck.energy > 5 * result.energy
+    stuck = local.solve(start="local", max_evaluations=200)  # Contact Edit's solve, from the open hand
+    assert len(stuck.unreached) >= 3 and stuck.energy > 3 * result.energy
 
 
 def test_an_edit_of_a_solved_layout_starts_where_the_hand_is_and_stays_near(far):
@@ -108,7 +114,7 @@ def test_an_edit_of_a_solved_layout_starts_where_the_hand_is_and_stays_near(far)
     solved = ik.solve()
     # the index pad's targets slid 4 mm along the surface's tangent, as one patch moved by hand
     moved = targets.copy()
-    index = slice(sum(n for _, n in patches[:2]), sum(n for _, n in patches[:3]))
+    index = _contacts_of(patches, "index_3")
     tangent = np.cross(normals[index].mean(0), [0.0, 0.0, 1.0])
     moved[index] += 0.004 * tangent / np.linalg.norm(tangent)
     moved[index] = solid.query(moved[index])[1]
@@ -127,11 +133,11 @@ def test_an_edit_of_a_solved_layout_starts_where_the_hand_is_and_stays_near(far)
 def test_a_patch_the_hand_cannot_reach_is_named(far):
     hand, points, targets, normals, _, patches = far
     out_of_reach = targets.copy()
-    thumb = slice(patches[0][1], patches[0][1] + patches[1][1])
+    thumb = _contacts_of(patches, "thumb_2")
     out_of_reach[thumb] += 0.25 * np.array([0.0, 0.0, 1.0])  # the thumb's targets 25 cm off the others
     result = ContactIK(hand, points, out_of_reach, normals, patches=patches).solve()
     assert len(result.unreached) > 1  # least squares spreads the miss over the patches
-    assert result.out_of_reach == ("thumb_3",) and result.gaps["thumb_3"] > 0.02
+    assert result.out_of_reach == ("thumb_2",) and result.gaps["thumb_2"] > 0.02
 
 
 def test_patches_and_starts_are_checked(far):
@@ -147,3 +153,38 @@ def test_patches_and_starts_are_checked(far):
         ik.solve(start="somewhere")
     with pytest.raises(SolverError, match="trust-region algorithm needs"):
         ContactIK(hand, points, targets, normals, algorithm="trust-region", norm="l2")
+
+
+def test_a_pad_left_hovering_is_pressed_onto_its_patch():
+    """Pads placed by eye (slid 2-5 mm off a grip that exists): Eq. 2's minimum leaves the thumb
+    hovering, its curl costing more prior than its last millimetres of contact; pressing it brings
+    every pad onto the object (the issue's judge: medians within 2 mm of the surface, no skin 1 mm in),
+    and the result's energy is still that of the given weights."""
+    layout = make_layout(known_grip(hands.make_hand("human"), "cylinder"), bin=BINS[0], seed=0)
+    patches = list(zip(layout.pads, np.bincount(layout.pad_index).tolist(), strict=True))
+    ik = ContactIK(layout.hand, layout.points, layout.positions, layout.normals, keep_out=layout.sdf,
+                   patches=patches)  # fmt: skip
+    plain = ik.solve(press=False)
+    assert "thumb_2" in plain.unreached and not judge(layout.hand, plain.theta, layout).success
+    pressed = ik.solve()
+    assert pressed.unreached == () and judge(layout.hand, pressed.theta, layout).success
+    assert pressed.energy == pytest.approx(ik.energy(pressed.theta)[0], rel=1e-12)
+    assert pressed.energy > plain.energy  # touching costs prior: Eq. 2's own minimum hovers
+    assert pressed.iterations > plain.iterations
+
+
+def test_contact_weights_scale_their_contacts_terms_and_are_checked(far):
+    hand, points, targets, normals, *_ = far
+    c = np.random.default_rng(5).uniform(0.0, 4.0, len(points))
+    theta = hand.rig.rest
+    _, plain = ContactIK(hand, points, targets, normals).energy(theta)
+    ik = ContactIK(hand, points, targets, normals, contact_weights=c)
+    _, weighted = ik.energy(theta)
+    posed, posed_normals = hand.posed_points(theta, points)
+    d2 = np.sum((posed - targets) ** 2, axis=1) / ik.unit**2
+    assert weighted["distance"] == pytest.approx(c @ d2, rel=1e-12)
+    assert weighted["normal"] == pytest.approx(c @ (1 + np.sum(posed_normals * normals, axis=1)), rel=1e-12)
+    assert weighted["prior"] == plain["prior"]
+    for bad, match in (([1.0], "one factor per contact"), (np.full(len(points), -1.0), "not finite")):
+        with pytest.raises(SolverError, match=match):
+            ContactIK(hand, points, targets, normals, contact_weights=bad)

@@ -10,6 +10,7 @@ which happened.
 from __future__ import annotations
 
 import bpy
+import numpy as np
 
 from .. import bridge, posing, preferences, store
 from .background import Background, Feed, Live, Plan
@@ -59,7 +60,7 @@ class CONTACT_EDIT_OT_solve(Background, HotkeyTool, bpy.types.Operator):
         problem, limit, feed = posing.problem(context.scene, self.stage), self.max_evaluations, Feed()
 
         def progress(step) -> bool:
-            better = feed.latest is None or step.energy < feed.latest.energy
+            better = feed.latest is None or not np.array_equal(step.theta, feed.latest.theta)
             return feed.report(step.iteration, step if better else None)
 
         start = posing.START_MODES[self.start]
