@@ -650,9 +650,9 @@ class ContactIK:
         may hover a few millimetres off the object: a curled finger's prior outweighs its last few
         millimetres. A person asked for the patch to touch, so its contacts' weights grow by
         :data:`PRESS_FACTOR` and the solve goes on from its pose, :data:`PRESS_ROUNDS` times at most,
-        each of at most :data:`PRESS_EVALUATIONS`, and kept only if it brings the patches nearer
-        touching in all (:meth:`_shortfall`) and leaves every patch that touched touching (a patch out of
-        reach must not drag the others off)."""
+        each of at most :data:`PRESS_EVALUATIONS`, and kept only if it leaves fewer patches unreached,
+        or as many nearer touching in all (:meth:`_standing`): a patch out of reach must not drag the
+        others off, but a patch the last round let go of is pressed in the next."""
         factors = self.contact_weights
         for _ in range(PRESS_ROUNDS):
             budget = min(int(max_evaluations) - result.iterations, PRESS_EVALUATIONS)
@@ -665,8 +665,7 @@ class ContactIK:
                 result.theta, free, told, budget, ftol_rel, "local"
             )
             count = result.iterations + more.iterations
-            dropped = set(more.unreached) - set(result.unreached)
-            if dropped or self._shortfall(more.gaps) >= self._shortfall(result.gaps):
+            if self._standing(more) >= self._standing(result):
                 status = "cancelled" if more.status == "cancelled" else result.status
                 return replace(result, iterations=count, status=status)
             energy, terms = self.energy(more.theta)
@@ -677,10 +676,11 @@ class ContactIK:
             )  # fmt: skip
         return result
 
-    def _shortfall(self, gaps: dict[str, float]) -> float:
-        """How far the patches are from touching in all: the sum of their gaps beyond
-        :data:`TOUCH_DISTANCE`."""
-        return float(sum(max(gap - TOUCH_DISTANCE * self.unit, 0.0) for gap in gaps.values()))
+    def _standing(self, result: SolveResult) -> tuple[int, float]:
+        """How far a result is from every patch touching, to compare two (lower is nearer): how many
+        patches are unreached, then the sum of their gaps beyond :data:`TOUCH_DISTANCE`."""
+        short = sum(max(gap - TOUCH_DISTANCE * self.unit, 0.0) for gap in result.gaps.values())
+        return len(result.unreached), float(short)
 
     def _solve(self, theta0, free, progress, max_evaluations, ftol_rel, start) -> SolveResult:
         """:meth:`solve`, the unreached patches left unexplained."""
