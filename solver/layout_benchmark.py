@@ -11,10 +11,10 @@ object carried away) are solved from the rest pose exactly as a user's script so
 with every other argument at the solve's default (the pads named, as the add-on names its patches), so
 the same run measures whatever the solve does today and after it changes. Each pose is judged
 (:func:`solver.layouts.judge`: every pad's median distance to the surface within 2 mm, to its patch
-within 8 mm, no skin more than 1 mm inside). Then one
-pad that touches (a seeded choice) is turned 25° on the surface (:func:`solver.layouts.turned`) and the
-layout re-solved from the solved pose, ``solve(theta0=...)``: the edit *flips* the hand when the palm
-turns by more than 30° or a pad that touched no longer does (:func:`solver.layouts.judge_edit`).
+within 8 mm, no skin more than 1 mm inside). Then one pad that touches (a seeded choice) is turned 25°
+on the surface (:func:`solver.layouts.turned`) and the layout re-solved from the solved pose,
+``solve(theta0=...)``: the edit *flips* the hand when the palm turns by more than 30° or a pad that
+touched no longer does (:func:`solver.layouts.judge_edit`).
 Layouts where no pad touches after the first solve have nothing to turn and are not edited.
 
 :func:`run` returns a :class:`LayoutRow` per hand and bin and one per hand for the edits;
