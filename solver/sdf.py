@@ -138,15 +138,18 @@ class MeshSDF:
 
 
 class NarrowBand:
-    """Signed distances within ``band`` of a surface, for a point set evaluated again and again as it moves
-    (a solve's skin): exact within the band, a positive lower bound and a zero gradient beyond it on
-    either side (as ``solid.evaluate(points, band)`` gives where it proves a point that far; a point deeper
-    inside than the band counts as beyond it too, so that what a penalty of penetration sees depends on
-    the points alone), querying only the points that may have come within the band.
+    """Signed distances of a point set evaluated again and again as it moves (a solve's skin), for a
+    penalty of penetration: exact where a point is inside within ``band`` of the surface, else a
+    positive lower bound with a zero gradient (beyond the band on either side, as
+    ``solid.evaluate(points, band)`` gives where it proves a point that far; a point deeper inside than
+    the band counts as beyond it too, so that what the penalty sees depends on the points alone), querying
+    only the points that may now be inside within the band.
 
     A signed distance changes by at most the distance a point moves (it is 1-Lipschitz), so a point last
     found ``|sd|`` from the surface and moved by ``m`` since is still beyond the band when
-    ``|sd| - m > band``: it gets ``|sd| - m`` without a query.
+    ``|sd| - m > band``, and one last found outside at ``sd > 0`` is still outside when ``sd - m > 0``:
+    either gets that difference, positive, without a query. Skin resting just off the object, most of
+    what lies within the band of a grasp, is then queried only when it has moved as far as it was off.
 
     Parameters
     ----------
@@ -158,7 +161,8 @@ class NarrowBand:
         self.solid = solid
         self.band = float(band)
         self._points: np.ndarray | None = None
-        self._distance: np.ndarray | None = None
+        self._distance: np.ndarray | None = None  # a lower bound on |sd| where last queried
+        self._outside: np.ndarray | None = None  # sd where last found outside within the band, else -inf
 
     def evaluate(self, points) -> tuple[np.ndarray, np.ndarray]:
         """Signed distances (k,) and gradients (k, 3) at points (k, 3), the same k points (in the same
@@ -166,10 +170,13 @@ class NarrowBand:
         X = _points(points)
         if self._points is None or self._points.shape != X.shape:
             self._points, self._distance = X.copy(), np.full(len(X), -np.inf)
+            self._outside = np.full(len(X), -np.inf)
         step = X - self._points
-        signed = self._distance - np.sqrt(np.einsum("ki,ki->k", step, step))
+        moved = np.sqrt(np.einsum("ki,ki->k", step, step))
+        beyond, outside = self._distance - moved, self._outside - moved
+        signed = np.where(beyond > self.band, beyond, outside)
         gradient = np.zeros_like(X)
-        near = np.flatnonzero(signed <= self.band)
+        near = np.flatnonzero((beyond <= self.band) & (outside <= 0))
         if near.size:
             sd, g = self.solid.evaluate(X[near], self.band)
             within = sd >= -self.band
@@ -177,6 +184,7 @@ class NarrowBand:
             gradient[near] = np.where(within[:, None], g, 0.0)
             self._points[near] = X[near]
             self._distance[near] = np.abs(sd)
+            self._outside[near] = np.where((sd > 0) & (sd <= self.band), sd, -np.inf)
         return signed, gradient
 
 

@@ -33,7 +33,8 @@ def test_the_compressed_system_has_the_full_systems_cost_gradient_and_model():
 def test_the_narrow_band_gives_the_bands_penetration_without_querying_far_skin():
     """Moving skin: inside within the band the distances and gradients are the solid's own, elsewhere
     (outside, or deeper than the band) positive, so the penetration a penalty sees is exactly the skin
-    within the band inside; points far from the surface are not queried again."""
+    within the band inside; points outside by more than they move, or far inside, are not queried
+    again."""
     hand = hands.make_hand("human")
     rng = np.random.default_rng(7)
     theta = rng.normal(size=hand.rig.n_dofs) * np.where(hand.rig.is_rotation, 0.2, 0.01)
@@ -59,6 +60,35 @@ def test_the_narrow_band_gives_the_bands_penetration_without_querying_far_skin()
         assert np.all(signed[~inside] > 0)
         assert np.all(gradient[exact < -band] == 0)
     assert queried[0] == len(V) and max(queried[1:]) < len(V) / 2
+
+
+def test_the_narrow_band_queries_skin_resting_just_off_the_surface_only_once_it_could_be_inside():
+    """Points 1-5 mm outside a ball (within the 6 mm band, inside its bounding box, so that each is
+    found exactly), then each moved 1.5 mm: those found farther off than that are provably still outside
+    and not queried; the others are."""
+    ball = MeshSDF(objects.sphere(0.05))
+    rng = np.random.default_rng(2)
+    directions = rng.normal(size=(600, 3))
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    directions = directions[np.abs(directions).max(axis=1) < 0.88][:200]  # inside the ball's box
+    X = directions * rng.uniform(0.051, 0.055, 200)[:, None]
+    queried = []
+
+    class Counting:
+        def evaluate(self, x, b):
+            queried.append(len(x))
+            return ball.evaluate(x, b)
+
+    tracked = NarrowBand(Counting(), 0.006)
+    tracked.evaluate(X)
+    off = ball(X)
+    move = rng.normal(size=(200, 3))
+    moved = X + 0.0015 * move / np.linalg.norm(move, axis=1)[:, None]
+    signed, _ = tracked.evaluate(moved)
+    assert np.all(off > 0) and queried == [200, np.sum(off <= 0.0015)]
+    far, exact = off > 0.0015, ball(moved)
+    assert np.all(signed[far] > 0) and np.all(signed[far] <= exact[far] + 1e-12)  # a lower bound, outside
+    np.testing.assert_allclose(signed[~far], exact[~far], rtol=0, atol=1e-15)
 
 
 def _layout(angle_degrees: float, shift: float, seed: int = 0):
