@@ -102,7 +102,7 @@ TOUCH_DISTANCE = 0.2
 #: A patch a solve leaves short of touching weighs this many times more in the next round of pressing
 #: (:meth:`ContactIK._pressed`), of at most :data:`PRESS_ROUNDS`.
 PRESS_FACTOR = 10.0
-PRESS_ROUNDS = 2
+PRESS_ROUNDS = 3
 #: Evaluations of each round of pressing: it starts near its end.
 PRESS_EVALUATIONS = 100
 #: What NLopt raises when it stops short of convergence (roundoff, or its generic failure). Its 2.9
