@@ -6,7 +6,7 @@ and every bin of the object's turn (:data:`solver.layouts.BINS`), ``per_bin`` se
 object carried away) are solved from the rest pose exactly as a user's script solves them::
 
     ContactIK(hand, layout.points, layout.positions, layout.normals, keep_out=layout.sdf,
-              patches=pads).solve()
+              patches=layout.patches).solve()
 
 with every other argument at the solve's default (the pads named, as the add-on names its patches), so
 the same run measures whatever the solve does today and after it changes. Each pose is judged
@@ -139,10 +139,8 @@ def _solve(layout: Layout, theta0=None, solve: str = "default") -> SolveResult:
         ik = ContactIK(layout.hand, layout.points, layout.positions, layout.normals, keep_out=layout.sdf,
                        algorithm="slsqp")  # fmt: skip
         return ik.solve(theta0, start="local", press=False)
-    counts = np.bincount(layout.pad_index, minlength=len(layout.pads)).tolist()
-    patches = list(zip(layout.pads, counts, strict=True))
     ik = ContactIK(layout.hand, layout.points, layout.positions, layout.normals, keep_out=layout.sdf,
-                   patches=patches)  # fmt: skip
+                   patches=layout.patches)  # fmt: skip
     return ik.solve() if theta0 is None else ik.solve(theta0=theta0)
 
 

@@ -117,6 +117,11 @@ class Grip:
     pad_index: np.ndarray
 
     @property
+    def patches(self) -> list[tuple[str, int]]:
+        """The pads as :class:`~solver.ContactIK` takes its ``patches``: (name, number of points)."""
+        return _patches(self.pads, self.pad_index)
+
+    @property
     def usable(self) -> bool:
         """Whether the grip has the :data:`MIN_PADS` pads a layout needs."""
         return len(self.pads) >= MIN_PADS
@@ -186,6 +191,11 @@ class Layout:
     palm: int
 
     @property
+    def patches(self) -> list[tuple[str, int]]:
+        """The pads as :class:`~solver.ContactIK` takes its ``patches``: (name, number of points)."""
+        return _patches(self.pads, self.pad_index)
+
+    @property
     def angle(self) -> float:
         """The turn of ``motion`` in degrees, in [0, 180]."""
         return float(np.degrees(matrix_to_axis_angle(self.motion[:3, :3])[0]))
@@ -244,6 +254,11 @@ class EditVerdict:
 
 
 # ------------------------------------------------------------------------------------------- grips
+
+
+def _patches(pads: tuple[str, ...], pad_index: np.ndarray) -> list[tuple[str, int]]:
+    """(name, number of points) per pad, in order."""
+    return list(zip(pads, np.bincount(pad_index, minlength=len(pads)).tolist(), strict=True))
 
 
 def object_named(name: str) -> TriMesh:

@@ -160,20 +160,20 @@ class NarrowBand:
     def __init__(self, solid, band: float):
         self.solid = solid
         self.band = float(band)
-        self._points: np.ndarray | None = None
-        self._distance: np.ndarray | None = None  # a lower bound on |sd| where last queried
-        self._outside: np.ndarray | None = None  # sd where last found outside within the band, else -inf
+        self._points: np.ndarray | None = None  # where each point was last queried
+        self._signed: np.ndarray | None = None  # and what it got there
 
     def evaluate(self, points) -> tuple[np.ndarray, np.ndarray]:
         """Signed distances (k,) and gradients (k, 3) at points (k, 3), the same k points (in the same
         order) at each call."""
         X = _points(points)
         if self._points is None or self._points.shape != X.shape:
-            self._points, self._distance = X.copy(), np.full(len(X), -np.inf)
-            self._outside = np.full(len(X), -np.inf)
+            self._points, self._signed = X.copy(), np.zeros(len(X))  # 0: every point is queried
         step = X - self._points
         moved = np.sqrt(np.einsum("ki,ki->k", step, step))
-        beyond, outside = self._distance - moved, self._outside - moved
+        last = self._signed
+        beyond = np.abs(last) - moved
+        outside = np.where((last > 0) & (last <= self.band), last - moved, -np.inf)
         signed = np.where(beyond > self.band, beyond, outside)
         gradient = np.zeros_like(X)
         near = np.flatnonzero((beyond <= self.band) & (outside <= 0))
@@ -183,8 +183,7 @@ class NarrowBand:
             signed[near] = np.where(within, sd, -sd)
             gradient[near] = np.where(within[:, None], g, 0.0)
             self._points[near] = X[near]
-            self._distance[near] = np.abs(sd)
-            self._outside[near] = np.where((sd > 0) & (sd <= self.band), sd, -np.inf)
+            self._signed[near] = sd
         return signed, gradient
 
 

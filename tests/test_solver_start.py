@@ -106,8 +106,7 @@ def _layout(angle_degrees: float, shift: float, seed: int = 0):
     solid = MeshSDF(moved)
     posed, _ = hand.posed_points(grip.theta, grip.points)
     _, targets, faces = solid.query(posed @ R.T + t)
-    patches = list(zip(grip.pads, np.bincount(grip.pad_index).tolist(), strict=True))
-    return hand, grip.points, targets, moved.face_normals[faces], solid, patches
+    return hand, grip.points, targets, moved.face_normals[faces], solid, grip.patches
 
 
 def _contacts_of(patches, name: str) -> slice:
@@ -191,9 +190,8 @@ def test_a_pad_left_hovering_is_pressed_onto_its_patch():
     every pad onto the object (the issue's judge: medians within 2 mm of the surface, no skin 1 mm in),
     and the result's energy is still that of the given weights."""
     layout = make_layout(known_grip(hands.make_hand("human"), "cylinder"), bin=BINS[0], seed=0)
-    patches = list(zip(layout.pads, np.bincount(layout.pad_index).tolist(), strict=True))
     ik = ContactIK(layout.hand, layout.points, layout.positions, layout.normals, keep_out=layout.sdf,
-                   patches=patches)  # fmt: skip
+                   patches=layout.patches)  # fmt: skip
     plain = ik.solve(press=False)
     assert "thumb_2" in plain.unreached and not judge(layout.hand, plain.theta, layout).success
     pressed = ik.solve()
