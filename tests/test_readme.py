@@ -91,7 +91,7 @@ def test_ci_runs_the_test_commands_line_by_line():
     done = subprocess.run(["awk", program, str(readme.README)], capture_output=True, text=True, check=True)
     lines = readme.block("The two commands", "sh", 1).lines()
     assert done.stdout.splitlines() == lines
-    assert lines[0].endswith(".venv/bin/pytest -q") and lines[1] == ".venv/bin/pytest -q -m slow"
+    assert lines[0].endswith(".venv/bin/pytest -q -n auto") and lines[1] == ".venv/bin/pytest -q -m slow"
     assert 'bash -c "$command" < /dev/null' in ci
 
 
