@@ -105,6 +105,9 @@ PRESS_FACTOR = 10.0
 PRESS_ROUNDS = 3
 #: Evaluations of each round of pressing: it starts near its end.
 PRESS_EVALUATIONS = 100
+#: Evaluations of each solve that looks for the patch out of reach (:meth:`ContactIK._out_of_reach`),
+#: pressing included: it starts from the solved pose, and must not take longer than the solve.
+EXPLAIN_EVALUATIONS = 2 * PRESS_EVALUATIONS
 #: What NLopt raises when it stops short of convergence (roundoff, or its generic failure). Its 2.9
 #: wheels, which the extension bundles, raise the generic failure as their own ``nlopt.runtime_error``
 #: (not a RuntimeError; nor can it be pickled, so a worker process could not even report it).
@@ -733,11 +736,12 @@ class ContactIK:
     def _out_of_reach(self, result: SolveResult, free, max_evaluations, ftol_rel, press) -> tuple[str, ...]:
         """The patch that keeps the others from touching (see :attr:`SolveResult.out_of_reach`): each
         unreached patch in turn, farthest first, left out of a local solve from the result's pose (of at
-        most ``max_evaluations``); the first whose absence lets every other patch touch, else all the
-        unreached."""
+        most :data:`EXPLAIN_EVALUATIONS`); the first whose absence lets every other patch touch, else all
+        the unreached."""
+        budget = min(int(max_evaluations), EXPLAIN_EVALUATIONS)
         for name in sorted(result.unreached, key=result.gaps.get, reverse=True):
             others = self._subset(self.patch_of != self.patch_names.index(name), self.contact_weights)
-            alone = others._solve_pressed(result.theta, free, None, max_evaluations, ftol_rel, "local", press)
+            alone = others._solve_pressed(result.theta, free, None, budget, ftol_rel, "local", press)
             if not alone.unreached:
                 return (name,)
         return result.unreached
