@@ -16,7 +16,10 @@ module finds the start instead, in three steps repeated a few times:
 3. Again: the root fits the fingers as they now curl, and the fingers the root as it now stands.
 
 It starts once from the fingers as given and once from the open hand (when they differ), and keeps the
-start with the lower energy; the solve then goes on from it with every term.
+start with the lower energy, or the hand where it stands with only its fingers solved (step 2 alone), if
+that is lower still: a hand may already stand where its grasp is, with only its fingers to wrap (the
+Example's hand beside its mug), and a root fit of the open fingers' pads would lay it through the
+object. The solve then goes on from the start kept with every term.
 """
 
 from __future__ import annotations
@@ -61,6 +64,9 @@ def grasp_start(ik, theta: np.ndarray, index: np.ndarray, descend: Descend, judg
     if not np.array_equal(opened, theta):
         starts.append(rig.clip(opened))
     best, best_energy = theta, np.inf
+    if fingers.size:
+        best = descend(theta, fingers, ROUNDS * FINGER_EVALUATIONS)  # the hand where it stands
+        best_energy = judge(best)
     for t in starts:
         for _ in range(ROUNDS):
             t = _root_fit(ik, t, root, weights)
