@@ -193,7 +193,7 @@ def test_the_example_with_the_issues_four_pads_touches_from_the_open_hand(tmp_pa
     """Issue 41's first case: the Example with four pads (index and middle tips, thumb tip, palm), each
     transferred where the wrapped fingers put it, solved from the open hand. Its hand already stands
     where the grasp is, only the fingers must wrap; a start laid onto the pads by a root fit alone went
-    through the mug (1 of 4 touching, 4.8 mm deep, 10 s). Measured on Blender's evaluated mesh."""
+    through the mug (1 of 4 touching, 4.8 mm deep, 10 s)."""
     found = run_blender(
         """
         import tempfile
