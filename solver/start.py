@@ -65,7 +65,7 @@ def grasp_start(ik, theta: np.ndarray, index: np.ndarray, descend: Descend, judg
         starts.append(rig.clip(opened))
     best, best_energy = theta, np.inf
     if fingers.size:
-        best = descend(theta, fingers, ROUNDS * FINGER_EVALUATIONS)  # the hand where it stands
+        best = descend(theta, fingers, FINGER_EVALUATIONS)  # the hand where it stands
         best_energy = judge(best)
     for t in starts:
         for _ in range(ROUNDS):
