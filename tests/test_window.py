@@ -300,7 +300,7 @@ def test_a_grasp_painted_and_placed_by_eye_touches_and_a_turned_patch_keeps_the_
     assert "all 4 patches touch" in first["summary"]
     assert first["deepest"] < 0.5e-3
     assert float(re.search(r"in ([0-9.]+) s", first["summary"])[1]) < 10.0  # software GL, two busy cores
-    assert results["turned"] == "CONTACT_EDIT_OT_rotate"
+    assert results["turned"][0] == "CONTACT_EDIT_OT_rotate" and abs(results["turned"][1] - 45.0) < 3.0
     second = results["second"]
     assert results["second_turn"] < 30.0, second["summary"]
     assert {"index tip", "thumb tip", "palm"} <= set(second["touching"]), second["summary"]

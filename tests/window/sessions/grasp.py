@@ -8,6 +8,7 @@ transfer, and each pad is placed a few millimetres and degrees off where that gr
 places it."""
 
 import math
+import time
 
 import bpy
 import numpy as np
@@ -93,14 +94,22 @@ def turned_by(a: Matrix, b: Matrix) -> float:
     return math.degrees(a.to_quaternion().rotation_difference(b.to_quaternion()).angle)
 
 
+def until(done, timeout: float = 120.0):
+    """Wait until ``done()``, or fail the session after ``timeout`` seconds."""
+    began = time.monotonic()
+    while not done():
+        if time.monotonic() - began > timeout:
+            raise TimeoutError(f"waited {timeout:.0f} s in vain")
+        yield 0.1
+
+
 def solve(s, view, label: str):
     """Solve with the hotkey over the viewport and wait for its summary; record it and what touches."""
     settings = bpy.context.scene.contact_edit
     settings.last_solve = ""
     yield from s.move(*view.centre())
     yield from s.key("ctrl+shift+e", settle=0.2)
-    while "evaluations in" not in settings.last_solve:
-        yield 0.1
+    yield from until(lambda: "evaluations in" in settings.last_solve)
     yield 0.5
     posing = addon("posing")
     problem = posing.problem(bpy.context.scene)
@@ -131,8 +140,7 @@ def steps(s):
         yield from s.move(*path[0])
         yield from s.key("ctrl+shift+p")
         yield from s.drag(path)
-        while len(hand.contact_edit.patches) == before:
-            yield 0.1
+        yield from until(lambda count=before: len(hand.contact_edit.patches) > count)
         hand.contact_edit.patches[-1].name = name  # renamed in the list, as a person would
         yield 0.2
     s.record("painted", [(e.name, e.points) for e in hand.contact_edit.patches])
@@ -208,7 +216,8 @@ def steps(s):
     yield from s.move(x + TURN / DEGREES_PER_PIXEL, y)
     s.xdotool("click", 1)
     yield 0.5
-    s.record("turned", bpy.context.window_manager.operators[-1].bl_idname)
+    rotated = bpy.context.window_manager.operators[-1]
+    s.record("turned", [rotated.bl_idname, math.degrees(getattr(rotated.properties, "angle", 0.0))])
     bpy.context.view_layer.objects.active = armature
     yield from solve(s, view, "second")
     s.record("second_turn", turned_by(solved, hand_matrix(armature)))
