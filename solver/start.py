@@ -63,20 +63,18 @@ def grasp_start(ik, theta: np.ndarray, index: np.ndarray, descend: Descend, judg
     opened[fingers] = rig.rest[fingers]
     if not np.array_equal(opened, theta):
         starts.append(rig.clip(opened))
-    best, best_energy = theta, np.inf
-    if fingers.size:
-        best = descend(theta, fingers, FINGER_EVALUATIONS)  # the hand where it stands
-        best_energy = judge(best)
+    candidates = []
     for t in starts:
         for _ in range(ROUNDS):
             t = _root_fit(ik, t, root, weights)
             judge(t)  # the hand laid onto its contacts: a better pose to show at once
             if fingers.size:
                 t = descend(t, fingers, FINGER_EVALUATIONS)
-        energy = judge(t)
-        if energy < best_energy:
-            best, best_energy = t, energy
-    return best
+        candidates.append(t)
+    if fingers.size:
+        candidates.append(descend(theta, fingers, FINGER_EVALUATIONS))  # the hand where it stands
+    energies = [judge(t) for t in candidates]
+    return candidates[int(np.argmin(energies))]
 
 
 def _root_fit(ik, theta: np.ndarray, root: np.ndarray, weights: np.ndarray) -> np.ndarray:
