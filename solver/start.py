@@ -72,7 +72,7 @@ def grasp_start(ik, theta: np.ndarray, index: np.ndarray, descend: Descend, judg
                 t = descend(t, fingers, FINGER_EVALUATIONS)
         candidates.append(t)
     if fingers.size:
-        candidates.append(descend(theta, fingers, FINGER_EVALUATIONS))  # the hand where it stands
+        candidates.append(descend(theta, fingers, ROUNDS * FINGER_EVALUATIONS))  # the hand where it stands
     energies = [judge(t) for t in candidates]
     return candidates[int(np.argmin(energies))]
 
