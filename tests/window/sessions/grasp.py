@@ -44,10 +44,10 @@ def pixels_per_metre(view, point) -> float:
     return float(np.linalg.norm(b - a) / 0.01)
 
 
-def pad_stroke(hand, view, bone: str, length: float) -> list[tuple[float, float]]:
+def pad_stroke(hand, procedural, view, bone: str, length: float) -> list[tuple[float, float]]:
     """Screen points of a stroke over the middle of a bone's pad (where the demo dabs it: the palm-side
-    face nearest the middle of the bone's palm-side skin), along the bone by ``length`` metres."""
-    procedural = hands.make_hand("human")  # the Example's hand: the same mesh
+    face nearest the middle of the bone's palm-side skin, on ``procedural``, the solver's hand the
+    Example's mesh was made from), along the bone by ``length`` metres."""
     face = addon("commands.demo")._pad_centre(procedural, bone)
     middle = procedural.mesh.vertices[procedural.mesh.faces[face]].mean(0)
     centre = bridge.object_to_world(hand, middle[None])[0]
@@ -133,8 +133,9 @@ def steps(s):
     yield from s.move(*view.centre())
     yield from s.key("KP_Divide", settle=0.8)
     yield from s.key("KP_3", settle=0.8)
+    procedural = hands.make_hand("human")  # the Example's hand: the same mesh
     for name, (bone, length, radius) in PADS.items():
-        path = pad_stroke(hand, view, bone, length)
+        path = pad_stroke(hand, procedural, view, bone, length)
         settings.brush_radius = round(radius * pixels_per_metre(view, hand.matrix_world.translation))
         before = len(hand.contact_edit.patches)
         yield from s.move(*path[0])
