@@ -114,7 +114,7 @@ def object_solid(mesh: TriMesh, to_armature: np.ndarray) -> MeshSDF | None:
     its faces point in), whose "inside" is all the space around it, where the hand starts."""
     if np.any(mesh.twin < 0) or mesh.signed_volume <= 0:
         return None
-    return MeshSDF(bridge.moved(mesh, to_armature))
+    return MeshSDF(bridge.moved_solid(mesh, to_armature))
 
 
 def problem(scene: bpy.types.Scene, stage: str = "ALL") -> Problem:
@@ -370,7 +370,7 @@ def flex(
             f"hand root, such as {', '.join(rig.names[1:4]) or 'none'})"
         )
     chains = _chains(rig.parents, selected)
-    inside = bridge.moved(bridge.trimesh(target), object_in_armature(target, posed))
+    inside = bridge.moved_solid(bridge.trimesh(target), object_in_armature(target, posed))
     skin = posed.skin
     manipulator = Hand(
         skin.mesh, rig, skin.weights, kind=f"'{hand.name}'", length=skin.size,

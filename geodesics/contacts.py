@@ -243,23 +243,39 @@ class ContactSet:
         direction: complex,
         rename: Callable[[str], str] = lambda name: name,
         hierarchy: bool = True,
+        scale: float = 1.0,
+        mirror: bool = True,
     ) -> tuple[ContactSet, ContactSet]:
         """Transfer patch ``name`` and (if ``hierarchy``) its descendants onto ``target``'s mesh as
         mirror images (§5.3), pairing each with its transfer.
 
+        ``scale`` is the length on ``target``'s mesh of a unit length on this set's (the two meshes'
+        units differ when their objects are scaled differently), so that a transfer keeps the patches'
+        true size. ``mirror=False`` transfers the patches themselves, not their mirror images: for
+        meshes placed with opposite handedness (one object scaled by -1), whose mirror images are.
+
         Returns the updated (this set, target set). Nothing changes if any transfer fails.
         """
         self[name]  # a clear error for an unknown name
+        if not (np.isfinite(scale) and scale > 0):
+            raise ContactError(f"the transfer's scale must be a positive length ratio, not {scale!r}")
         names = [name, *self.descendants(name)] if hierarchy else [name]
         taken = [rename(n) for n in names if rename(n) in target]
         if taken:
             raise ContactError(f"the target already has patches named {', '.join(taken)}")
-        moved = {rename(name): self[name].transfer(target.mesh, start, direction)}
+
+        def embed(patch: ContactPatch, at: SurfacePoints, direction: complex) -> ContactPatch:
+            return patch.transfer(
+                target.mesh, at, direction, axis_scale=scale, radial_scale=scale, mirror=mirror
+            )
+
+        moved = {rename(name): embed(self[name], start, direction)}
         links = {}
         for child in names[1:]:
-            link = self.links[child].mirrored()
+            link = self.links[child].mirrored() if mirror else self.links[child]
+            link = Link(link.parent, link.length * scale, link.leave, link.arrive)
             child_start, child_direction = link.follow(moved[rename(link.parent)].axis)
-            moved[rename(child)] = self[child].transfer(target.mesh, child_start, child_direction)
+            moved[rename(child)] = embed(self[child], child_start, child_direction)
             links[rename(child)] = Link(rename(link.parent), link.length, link.leave, link.arrive)
         target = target._with(
             patches={**target.patches, **moved},

@@ -129,15 +129,19 @@ class ContactPatch:
         *,
         axis_scale: float = 1.0,
         radial_scale: float = 1.0,
+        mirror: bool = True,
     ) -> ContactPatch:
         """The mirror image of this patch embedded on ``target`` (Algorithm 5), its axis starting at
         ``start`` along ``direction`` (in start's basis), so the two patches face each other.
 
         ``axis_scale`` and ``radial_scale`` stretch the axis and the distances from it (the
         retargeting paper's λ_A and λ_S); both are 1 for an as-isometric-as-possible transfer.
+        ``mirror=False`` embeds the patch itself instead of its mirror image: for a target whose
+        surface orientation is reversed against this one's where they meet (one mesh placed mirrored).
         """
-        axis = self.axis.trace(target, start, direction, mirror=True, scale=axis_scale)
-        return ContactPatch._on(axis, self.binding, np.conj(self.coords) * radial_scale)
+        axis = self.axis.trace(target, start, direction, mirror=mirror, scale=axis_scale)
+        coords = np.conj(self.coords) if mirror else self.coords
+        return ContactPatch._on(axis, self.binding, coords * radial_scale)
 
     def translate(self, to: SurfacePoints) -> ContactPatch:
         """Slide the patch so its axis starts at ``to`` (parallel transport along the shortest geodesic)."""

@@ -10,6 +10,7 @@ from geodesics import (
     ContactPatch,
     ContactSet,
     SurfacePoints,
+    TriMesh,
     farthest_pair_axis,
     log_map,
     medial_axis,
@@ -109,6 +110,28 @@ def test_hierarchical_transfer_pairs_and_keeps_the_arrangement(hand):
     assert not np.allclose(moved["nail@mug"].positions(), target["nail@mug"].positions())
     with pytest.raises(ContactError, match="already has"):
         hand.transfer("palm", target, start, 1j, rename=lambda n: f"{n}@mug")
+
+
+@pytest.mark.parametrize("mirror", [True, False])
+def test_a_transfer_between_units_keeps_true_size_and_chosen_handedness(hand, plane, mirror):
+    """Onto the same plane in other units (three target lengths per hand length, as a hand in metres
+    onto a prop in other units), the whole hierarchy lands as the hand's layout scaled by exactly 3:
+    mirrored (w = c z̄ + t) by default, unmirrored (w = c z + t) with ``mirror=False``, |c| = 3."""
+    big = TriMesh(plane.vertices * 3.0, plane.faces)
+    start = nearest(big, 3.0 * hand["palm"].axis.start.positions(plane)[0])
+    _, target = hand.transfer("palm", ContactSet(big), start, 1.0, scale=3.0, mirror=mirror)
+    names = ["palm", "index", "thumb", "nail"]
+    z = np.concatenate([hand[n].positions()[:, :2] @ [1, 1j] for n in names])
+    w = np.concatenate([target[n].positions()[:, :2] @ [1, 1j] for n in names])
+    A = np.c_[np.conj(z) if mirror else z, np.ones_like(z)]
+    fit = np.linalg.lstsq(A, w, rcond=None)[0]
+    np.testing.assert_allclose(A @ fit, w, atol=1e-9)
+    assert abs(fit[0]) == pytest.approx(3.0, rel=1e-9)
+    for child, link in target.links.items():
+        got = abs(log_map(big, target[link.parent].axis.start, target[child].axis.start)[0])
+        assert got == pytest.approx(3.0 * hand.links[child].length, rel=1e-9)
+    with pytest.raises(ContactError, match="scale"):
+        hand.transfer("palm", ContactSet(big), start, 1.0, scale=0.0)
 
 
 def test_rename_keeps_order_links_pairs_and_edits(hand):

@@ -22,8 +22,10 @@ from .armature import (
 )
 from .errors import BridgeError
 from .mesh import (
+    handedness,
     mesh_arrays,
     moved,
+    moved_solid,
     object_to_world,
     points_from_hits,
     points_from_vertices,
@@ -44,8 +46,10 @@ __all__ = [
     "hand_plan",
     "hand_rig",
     "hand_skeleton",
+    "handedness",
     "mesh_arrays",
     "moved",
+    "moved_solid",
     "object_to_world",
     "points_from_hits",
     "points_from_vertices",

@@ -264,7 +264,15 @@ def _hand_to_armature(hand: bpy.types.Object, armature: bpy.types.Object) -> np.
             "apply its scale (Ctrl+A, Scale) first",
             hand.name,
         )
-    return np.linalg.inv(A) @ np.array(hand.matrix_world)
+    M = np.linalg.inv(A) @ np.array(hand.matrix_world)
+    if np.linalg.det(M[:3, :3]) < 0:
+        raise BridgeError(
+            f"'{hand.name}' is placed mirrored against its armature '{armature.name}' (a negative scale on "
+            "one and not the other), which turns its skin inside out for the armature; apply the mesh's "
+            "scale (Ctrl+A, Scale) first",
+            hand.name,
+        )
+    return M
 
 
 def _deform_weights(hand: bpy.types.Object, armature: bpy.types.Object) -> sparse.csr_matrix:

@@ -76,6 +76,15 @@ def moved(mesh: TriMesh, M: np.ndarray) -> TriMesh:
     return cached_trimesh(mesh.vertices @ M[:3, :3].T + M[:3, 3], mesh.faces)
 
 
+def moved_solid(mesh: TriMesh, M: np.ndarray) -> TriMesh:
+    """``mesh`` carried by the (4, 4) matrix ``M`` with its faces still pointing out: reversed when ``M``
+    mirrors. For telling inside from outside only; its surface points are not ``mesh``'s."""
+    carried = moved(mesh, M)
+    if np.linalg.det(M[:3, :3]) >= 0:
+        return carried
+    return cached_trimesh(carried.vertices, carried.faces[:, ::-1])
+
+
 def cached_trimesh(vertices: np.ndarray, faces: np.ndarray) -> TriMesh:
     """``TriMesh(vertices, faces)``, from the cache when the same arrays were given before."""
     return _cached(("arrays", _fingerprint(vertices, faces)), lambda: TriMesh(vertices, faces))
@@ -168,6 +177,12 @@ def uniform_scale(obj: bpy.types.Object) -> float:
     """The object's scale factor (world length per object-space length; the cube root of the volume
     scale, for objects scaled unevenly)."""
     return float(abs(np.linalg.det(np.array(obj.matrix_world)[:3, :3])) ** (1.0 / 3.0))
+
+
+def handedness(obj: bpy.types.Object) -> int:
+    """+1 for an object placed as modelled, -1 for one placed mirrored (its world matrix reverses
+    orientation: a scale of -1 on an odd number of axes, here or on a parent)."""
+    return 1 if np.linalg.det(np.array(obj.matrix_world)[:3, :3]) >= 0 else -1
 
 
 def world_to_object(obj: bpy.types.Object, points) -> np.ndarray:

@@ -75,7 +75,8 @@ def run(out: Path, render: bool = True, progress: Callable[[str], None] = lambda
     scene.contact_edit.brush_density = DENSITY
     for name, (bone, radius) in PADS.items():
         face = _pad_centre(hand, bone)
-        centre = bridge.object_to_world(hand_obj, hand.mesh.vertices[hand.mesh.faces[face]].mean(0)[None])[0]
+        corners = bridge.mesh_arrays(hand_obj.data)[0][hand.mesh.faces[face]]
+        centre = bridge.object_to_world(hand_obj, corners.mean(0)[None])[0]
         dab = {"name": "", "location": centre, "polygon": int(face), "radius": radius}
         bpy.ops.contact_edit.paint(name=name, source="STROKE", object_name=hand_obj.name, stroke=[dab])
 

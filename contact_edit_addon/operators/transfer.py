@@ -11,7 +11,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from .. import store
+from .. import bridge, store
 from ..ui import overlays
 from .common import (
     NAVIGATION,
@@ -160,6 +160,8 @@ class CONTACT_EDIT_OT_transfer(HotkeyTool, bpy.types.Operator):
             direction,
             rename=lambda n: f"{n}{self.suffix}",
             hierarchy=self.hierarchy,
+            scale=bridge.uniform_scale(settings.hand) / bridge.uniform_scale(target),
+            mirror=bridge.handedness(settings.hand) == bridge.handedness(target),
         )
         colors = {f"{e.name}{self.suffix}": tuple(e.color) for e in settings.hand.contact_edit.patches}
         return hand_after, object_after, colors
