@@ -203,7 +203,10 @@ def rig_mismatch(scene: bpy.types.Scene, problem: Problem, theta) -> str | None:
     if off <= FOLLOW_TOLERANCE * problem.posed.skin.size:
         return None
     approximated = problem.posed.plan.approximated
-    why = f" ({', '.join(approximated[:2])} taken to follow the hand)" if approximated else ""
+    later = [m.name for m in bridge.after_armature(bpy.data.objects[problem.posed.hand])]
+    reasons = [f"{', '.join(approximated[:2])} taken to follow the hand"] if approximated else []
+    reasons += [f"{', '.join(later)} after the Armature modifier"] if later else []
+    why = f" ({'; '.join(reasons)})" if reasons else ""
     return (
         f"the rig's skin ends up to {length_text(scene, off * problem.world_scale)} from the solved pose{why}"
     )

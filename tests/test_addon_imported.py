@@ -44,6 +44,10 @@ def mirrored_rig(armature, hand_obj):
 def mirrored_object(armature, hand_obj):
     bpy.context.scene.contact_edit.target.scale = (1, -1, 1)
 
+def subdivided(armature, hand_obj):
+    # Subdivision Surface level 2 after the Armature modifier, as on nearly every production hand.
+    hand_obj.modifiers.new("Subdivision", "SUBSURF").levels = 2
+
 def restyled(context, where):
     kit, hand_obj, mug = build(context, where)
     STYLE(hand_obj.parent, hand_obj)
@@ -94,3 +98,63 @@ def test_a_hand_mesh_mirrored_against_its_armature_is_refused_by_name(tmp_path):
         setup=RESTYLED,
     )
     assert "'Hand' is placed mirrored against its armature 'Hand rig'" in found
+
+
+def test_a_hand_subdivided_after_its_armature_is_solved_on_its_cage(tmp_path):
+    """With Subdivision Surface after the Armature modifier the pose was written and then the operator
+    crashed comparing 89,858 shown vertices with the 3,746 solved. The solve works on the cage the
+    armature deforms; every pad's targets end within 2 mm of the subdivided skin Blender shows (measured
+    to its nearest vertex, an upper bound of the distance to its surface)."""
+    found = run_blender(
+        """
+        from scipy.spatial import cKDTree
+        from contact_edit_addon import posing
+        done = demo.run(tempfile.mkdtemp(), render=False)
+        scene = bpy.context.scene
+        hand_obj = scene.contact_edit.hand
+        problem = posing.problem(scene)
+        evaluated = hand_obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).to_mesh()
+        shown = np.array([v.co for v in evaluated.vertices])
+        H, A = np.array(hand_obj.matrix_world), np.array(hand_obj.parent.matrix_world)
+        targets = problem.ik.target_points @ A[:3, :3].T + A[:3, 3]
+        gap, _ = cKDTree(shown @ H[:3, :3].T + H[:3, 3]).query(targets)
+        ends = np.cumsum(problem.sizes)
+        pairs = zip(problem.pairs, problem.sizes, ends)
+        medians = {h: float(np.median(gap[e - n:e])) for (h, _), n, e in pairs}
+        result({"touching": sorted(done.touching), "medians": medians, "summary": done.summary,
+                "shown": len(shown), "own": len(hand_obj.data.vertices)})
+        """,
+        tmp_path,
+        setup=RESTYLED.replace("STYLE(", "subdivided("),
+    )
+    assert found["shown"] > 10 * found["own"]  # the subdivided skin is what Blender shows
+    assert len(found["touching"]) == 6, found["summary"]
+    assert "from the solved pose" not in found["summary"]
+    assert max(found["medians"].values()) < 2e-3, found["medians"]
+
+
+def test_modifiers_after_the_armature_are_solved_through_or_named(tmp_path):
+    """Triangulate and Weighted Normal after the Armature modifier change the topology or only normals:
+    the solve recovers the mould's pose with nothing to say. Corrective Smooth moves the skin the solve
+    cannot model: the summary names it with how far the skin shown is from the solved one."""
+    from .test_addon_pose import MOULD, SETUP
+
+    found = run_blender(
+        """
+        hand.modifiers.new("Triangulate", "TRIANGULATE")
+        hand.modifiers.new("WeightedNormal", "WEIGHTED_NORMAL")
+        bpy.ops.contact_edit.solve(stage="ALL")
+        plain = scene.contact_edit.last_solve
+        bridge.apply_pose(posed, posed.rig.rest)
+        hand.modifiers.new("Corrective", "CORRECTIVE_SMOOTH")
+        bpy.ops.contact_edit.solve(stage="ALL")
+        result({"plain": plain, "smoothed": scene.contact_edit.last_solve})
+        """,
+        tmp_path,
+        setup=SETUP + MOULD,
+    )
+    assert "all 4 patches touch" in found["plain"] and "from the solved pose" not in found["plain"]
+    assert (
+        "from the solved pose (Triangulate, WeightedNormal, Corrective after the Armature modifier)"
+        in (found["smoothed"])
+    )

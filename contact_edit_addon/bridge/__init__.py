@@ -22,6 +22,7 @@ from .armature import (
 )
 from .errors import BridgeError
 from .mesh import (
+    after_armature,
     handedness,
     mesh_arrays,
     moved,
@@ -40,6 +41,7 @@ __all__ = [
     "BridgeError",
     "HandRig",
     "PosedHand",
+    "after_armature",
     "apply_pose",
     "armature_modifier",
     "deviation",

@@ -28,7 +28,7 @@ from solver.rig import Armature, ControlRig, Plan
 from solver.rotations import euler_to_matrix, matrix_to_quaternion, quaternion_to_axis_angle
 
 from .errors import BridgeError
-from .mesh import cached_trimesh, vertex_group_weights
+from .mesh import cached_trimesh, deformed_vertices, vertex_group_weights
 from .rigs import read_armature
 
 #: Blender's Armature modifier leaves a vertex in place when its deform weights sum to no more than this.
@@ -436,16 +436,11 @@ def _rotation_channel(
 
 def deviation(posed: PosedHand, theta) -> float:
     """The largest distance (armature space) between the skin Blender now shows and the solver's pose θ:
-    near zero when the rig followed the solve exactly (the check after writing a pose back)."""
+    near zero when the rig followed the solve exactly (the check after writing a pose back). Blender's
+    skin is read where its Armature modifier puts the mesh's own vertices (before a Subdivision Surface
+    after it refines them)."""
     hand = bpy.data.objects.get(posed.hand)
-    depsgraph = bpy.context.evaluated_depsgraph_get()
-    depsgraph.update()
-    mesh = hand.evaluated_get(depsgraph).to_mesh()
-    try:
-        shown = np.empty(3 * len(mesh.vertices))
-        mesh.vertices.foreach_get("co", shown)
-    finally:
-        hand.evaluated_get(depsgraph).to_mesh_clear()
+    shown = deformed_vertices(hand)
     M = posed.hand_to_armature
-    shown = shown.reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]
+    shown = shown @ M[:3, :3].T + M[:3, 3]
     return float(np.abs(shown - posed.skin.posed_vertices(theta)).max())

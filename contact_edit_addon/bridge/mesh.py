@@ -12,6 +12,7 @@ space (an object's mesh in its hand's armature space, as each solve needs it).
 from __future__ import annotations
 
 import hashlib
+from contextlib import contextmanager
 
 import bpy
 import numpy as np
@@ -37,31 +38,19 @@ def mesh_arrays(mesh: bpy.types.Mesh) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return vertices.reshape(-1, 3), corners, sizes
 
 
-def trimesh(obj: bpy.types.Object, deformed: bool = False, depsgraph=None) -> TriMesh:
-    """The object's surface as a TriMesh, in object space: its rest shape, or its evaluated (deformed)
-    shape when ``deformed`` (which must keep the topology).
+def trimesh(obj: bpy.types.Object, deformed: bool = False) -> TriMesh:
+    """The object's surface as a TriMesh, in object space: its rest shape, or when ``deformed`` its
+    vertices where Blender's deform modifiers put them (:func:`deformed_vertices`).
 
     Raises BridgeError with the object's name and what is wrong (no mesh, no faces, non-manifold...).
     """
     if obj is None or obj.type != "MESH":
         raise BridgeError(f"'{getattr(obj, 'name', None)}' is not a mesh object")
-    mesh = obj.data
-    if deformed:
-        depsgraph = depsgraph or bpy.context.evaluated_depsgraph_get()
-        evaluated = obj.evaluated_get(depsgraph)
-        mesh = evaluated.to_mesh()
-    try:
-        vertices, corners, sizes = mesh_arrays(mesh)
-    finally:
-        if deformed:
-            evaluated.to_mesh_clear()
+    vertices, corners, sizes = mesh_arrays(obj.data)
     if sizes.size == 0:
         raise BridgeError(f"'{obj.name}' has no faces to put contacts on")
-    if deformed and (len(vertices) != len(obj.data.vertices) or sizes.size != len(obj.data.polygons)):
-        raise BridgeError(
-            f"the modifiers of '{obj.name}' change its topology, so its deformed shape cannot carry "
-            "contacts; use the rest shape or apply the modifiers"
-        )
+    if deformed:
+        vertices = deformed_vertices(obj)
     key = (obj.name, deformed, _fingerprint(vertices, corners, sizes))
     try:
         return _cached(key, lambda: TriMesh.from_polygons(vertices, (corners, sizes)))
@@ -69,6 +58,61 @@ def trimesh(obj: bpy.types.Object, deformed: bool = False, depsgraph=None) -> Tr
         raise BridgeError(
             f"'{obj.name}' cannot carry contacts: {err}", obj.name, err.faces, err.vertices
         ) from err
+
+
+def deformed_vertices(obj: bpy.types.Object) -> np.ndarray:
+    """(n, 3) the object's own vertices where Blender's evaluation puts them (object space).
+
+    Modifiers shown after its last Armature modifier that change the topology (a Subdivision Surface)
+    only refine what the armature deformed: the vertices are then read from an evaluation with them
+    switched off (see :func:`armature_cage`). Raises BridgeError if the topology still differs.
+    """
+    vertices = _evaluated_vertices(obj)
+    if vertices is None:
+        with armature_cage(obj):
+            vertices = _evaluated_vertices(obj)
+    if vertices is None:
+        raise BridgeError(
+            f"the modifiers of '{obj.name}' change its topology, so its deformed shape cannot carry "
+            "contacts; use the rest shape or apply the modifiers"
+        )
+    return vertices
+
+
+@contextmanager
+def armature_cage(obj: bpy.types.Object):
+    """Within it, Blender evaluates ``obj`` without the modifiers shown after its last Armature modifier,
+    so that its evaluated mesh is the cage those modifiers refine; they are shown again on leaving."""
+    later = after_armature(obj)
+    for modifier in later:
+        modifier.show_viewport = False
+    try:
+        yield
+    finally:
+        for modifier in later:
+            modifier.show_viewport = True
+
+
+def after_armature(obj: bpy.types.Object) -> list[bpy.types.Modifier]:
+    """The modifiers shown after the object's last shown Armature modifier (none without one)."""
+    armatures = [i for i, m in enumerate(obj.modifiers) if m.type == "ARMATURE" and m.show_viewport]
+    return [m for m in obj.modifiers[armatures[-1] + 1 :] if m.show_viewport] if armatures else []
+
+
+def _evaluated_vertices(obj: bpy.types.Object) -> np.ndarray | None:
+    """The evaluated mesh's vertex positions (n, 3), or None if its vertex or face count is not the
+    object's own."""
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    evaluated = obj.evaluated_get(depsgraph)
+    mesh = evaluated.to_mesh()
+    try:
+        if len(mesh.vertices) != len(obj.data.vertices) or len(mesh.polygons) != len(obj.data.polygons):
+            return None
+        vertices = np.empty(3 * len(mesh.vertices), np.float64)
+        mesh.vertices.foreach_get("co", vertices)
+    finally:
+        evaluated.to_mesh_clear()
+    return vertices.reshape(-1, 3)
 
 
 def moved(mesh: TriMesh, M: np.ndarray) -> TriMesh:
