@@ -158,3 +158,46 @@ def test_modifiers_after_the_armature_are_solved_through_or_named(tmp_path):
         "from the solved pose (Triangulate, WeightedNormal, Corrective after the Armature modifier)"
         in (found["smoothed"])
     )
+
+
+def test_a_constant_shape_key_is_solved_exactly_and_a_driven_one_is_refused_by_name(tmp_path):
+    """A corrective shape key at 0.5 is part of the shape the armature deforms: the solver's skin at a
+    random pose is Blender's evaluated mesh, and the mould's pose is recovered. A key whose driver reads
+    a bone the solve moves is refused, naming the key and the bone, before anything moves."""
+    from .test_addon_pose import MOULD, SETUP
+
+    keyed = """
+hand.shape_key_add(name="Basis")
+key = hand.shape_key_add(name="Corrective")
+normals = np.array([v.normal for v in hand.data.vertices])
+rest = np.array([v.co for v in hand.data.vertices])
+key.data.foreach_set("co", (rest + 0.004 * normals * (rest[:, 0:1] > np.median(rest[:, 0]))).ravel())
+key.value = 0.5
+"""
+    found = run_blender(
+        """
+        faces = bridge.trimesh(hand).faces
+        skin = bridge.posed_hand(hand, faces)
+        theta = skin.rig.clip(0.5 * random_pose(skin.rig, np.random.default_rng(1)))
+        bridge.apply_pose(skin, theta)
+        exact = bridge.deviation(skin, theta)
+        bridge.apply_pose(skin, skin.rig.rest)
+        bpy.ops.contact_edit.solve(stage="ALL")
+        solved = scene.contact_edit.last_solve
+        driver = key.driver_add("value").driver
+        variable = driver.variables.new()
+        variable.targets[0].id = armature
+        variable.targets[0].data_path = 'pose.bones["index_2"].rotation_euler[0]'
+        driver.expression = variable.name
+        before = pose_matrices()
+        refused = error_of(lambda: bpy.ops.contact_edit.solve(stage="ALL"))
+        result({"exact": exact, "size": skin.skin.size, "solved": solved, "refused": refused,
+                "moved": changed(before, pose_matrices())})
+        """,
+        tmp_path,
+        setup=SETUP + keyed + MOULD,
+    )
+    assert found["exact"] < 1e-6 * found["size"]
+    assert "all 4 patches touch" in found["solved"], found["solved"]
+    assert "'Corrective' by index_2" in found["refused"], found["refused"]
+    assert found["moved"] == []

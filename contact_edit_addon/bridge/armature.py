@@ -28,8 +28,8 @@ from solver.rig import Armature, ControlRig, Plan
 from solver.rotations import euler_to_matrix, matrix_to_quaternion, quaternion_to_axis_angle
 
 from .errors import BridgeError
-from .mesh import cached_trimesh, deformed_vertices, vertex_group_weights
-from .rigs import read_armature
+from .mesh import cached_trimesh, deformed_vertices, shaped_vertices, vertex_group_weights
+from .rigs import driven_keys, read_armature
 
 #: Blender's Armature modifier leaves a vertex in place when its deform weights sum to no more than this.
 MIN_TOTAL_WEIGHT = 1e-4
@@ -112,9 +112,6 @@ def armature_modifier(hand: bpy.types.Object) -> bpy.types.ArmatureModifier:
         problems.append("it does not use vertex groups")
     if modifier.vertex_group:
         problems.append(f"it is masked by the vertex group '{modifier.vertex_group}'")
-    keys = hand.data.shape_keys
-    if keys is not None and any(k.value != 0 and not k.mute for k in keys.key_blocks[1:]):
-        problems.append("shape keys change the shape it deforms")
     if problems:
         raise BridgeError(
             f"contact IK models plain linear blend skinning, but on '{hand.name}' the Armature modifier "
@@ -134,6 +131,8 @@ class HandRig:
     deform: tuple[str, ...]
     weights: sparse.csr_matrix
     hand_to_armature: np.ndarray
+    #: The hand's shape keys whose drivers read the armature's bones: key name -> the bones read.
+    driven_keys: dict[str, tuple[str, ...]]
 
 
 def hand_rig(hand: bpy.types.Object) -> HandRig:
@@ -160,7 +159,7 @@ def hand_rig(hand: bpy.types.Object) -> HandRig:
     W = sparse.csr_matrix(
         sparse.diags(np.where(total > MIN_TOTAL_WEIGHT, 1.0 / np.maximum(total, 1e-300), 0.0)) @ W
     )
-    return HandRig(armature, read_armature(armature), deform, W, to_armature)
+    return HandRig(armature, read_armature(armature), deform, W, to_armature, driven_keys(hand, armature))
 
 
 def hand_skeleton(hand: bpy.types.Object) -> Skeleton:
@@ -201,13 +200,24 @@ def hand_plan(
     ``hand_root`` names the wrist bone; empty finds it from the bones under the contact ``points``.
     """
     try:
-        return rig.model.plan(
+        plan = rig.model.plan(
             rig.deform,
             contact_bones=contact_bones(rig, faces, points),
             hand_root=hand_root or None,
         )
     except SolverError as err:
         raise BridgeError(f"'{rig.armature.name}': {err}") from err
+    posed = {*plan.controls, *([plan.root] if plan.root else [])}
+    posed |= rig.model.downstream(posed)
+    driven = {key: sorted(posed.intersection(bones)) for key, bones in rig.driven_keys.items()}
+    driven = {key: bones for key, bones in driven.items() if bones}
+    if driven:
+        what = "; ".join(f"'{key}' by {', '.join(bones[:3])}" for key, bones in driven.items())
+        raise BridgeError(
+            f"shape keys of the hand are driven by bones the solve moves ({what}), which contact IK does "
+            "not model; mute those keys' drivers (or the keys) while solving",
+        )
+    return plan
 
 
 def posed_hand(
@@ -235,10 +245,8 @@ def posed_hand(
     plan = hand_plan(rig, faces, points, hand_root)
     try:
         control_rig = ControlRig(plan)
-        vertices = np.empty(3 * len(hand.data.vertices))
-        hand.data.vertices.foreach_get("co", vertices)
         M = rig.hand_to_armature
-        rest = vertices.reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]
+        rest = shaped_vertices(hand) @ M[:3, :3].T + M[:3, 3]
         skin = SkinnedMesh(cached_trimesh(rest, faces), control_rig, rig.weights)
     except SolverError as err:
         raise BridgeError(str(err), hand.name) from err

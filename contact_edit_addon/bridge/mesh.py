@@ -79,17 +79,39 @@ def deformed_vertices(obj: bpy.types.Object) -> np.ndarray:
     return vertices
 
 
+def shaped_vertices(obj: bpy.types.Object) -> np.ndarray:
+    """(n, 3) the object's own vertices as its shape keys shape them (object space): the rest shape its
+    Armature modifier deforms, read from Blender's evaluation with that modifier and those after it
+    switched off (the vertices themselves when no shape key changes them)."""
+    keys = obj.data.shape_keys
+    if keys is None or not any(k.value != 0 and not k.mute for k in keys.key_blocks[1:]):
+        return mesh_arrays(obj.data)[0]
+    armatures = [i for i, m in enumerate(obj.modifiers) if m.type == "ARMATURE" and m.show_viewport]
+    with _hidden(obj.modifiers[armatures[0] :] if armatures else []):
+        vertices = _evaluated_vertices(obj)
+    if vertices is None:
+        raise BridgeError(f"the modifiers of '{obj.name}' before its Armature modifier change its topology")
+    return vertices
+
+
 @contextmanager
 def armature_cage(obj: bpy.types.Object):
     """Within it, Blender evaluates ``obj`` without the modifiers shown after its last Armature modifier,
     so that its evaluated mesh is the cage those modifiers refine; they are shown again on leaving."""
-    later = after_armature(obj)
-    for modifier in later:
+    with _hidden(after_armature(obj)):
+        yield
+
+
+@contextmanager
+def _hidden(modifiers):
+    """Within it, the given modifiers that are shown in the viewport are not; they are again on leaving."""
+    shown = [m for m in modifiers if m.show_viewport]
+    for modifier in shown:
         modifier.show_viewport = False
     try:
         yield
     finally:
-        for modifier in later:
+        for modifier in shown:
             modifier.show_viewport = True
 
 

@@ -21,6 +21,7 @@ from .constraints import read_bone, read_constraints
 from .errors import BridgeError
 
 _BONE_PATH = re.compile(r'^pose\.bones\["((?:[^"\\]|\\.)*)"\]')
+_KEY_PATH = re.compile(r'^key_blocks\["((?:[^"\\]|\\.)*)"\]')
 #: Pose bone properties whose values a driver may read without depending on the bone's pose.
 _CHANNELS = ("location", "rotation_euler", "rotation_quaternion", "rotation_axis_angle", "scale")
 
@@ -125,6 +126,24 @@ def _driver_inputs(armature: bpy.types.Object) -> dict[str, list[DriverInput]]:
                 if read is not None:
                     found.setdefault(owner, []).append(read)
     return found
+
+
+def driven_keys(mesh: bpy.types.Object, armature: bpy.types.Object) -> dict[str, tuple[str, ...]]:
+    """The mesh's shape keys whose (unmuted) drivers read ``armature``'s bones: key name -> bones read."""
+    keys = getattr(mesh.data, "shape_keys", None)
+    data = keys.animation_data if keys is not None else None
+    found: dict[str, set[str]] = {}
+    for fcurve in data.drivers if data else ():
+        match = _KEY_PATH.match(fcurve.data_path)
+        block = keys.key_blocks.get(match.group(1)) if match else None
+        if block is None or block.mute or fcurve.mute:
+            continue
+        for variable in fcurve.driver.variables:
+            for target in variable.targets[: 2 if variable.type in {"ROTATION_DIFF", "LOC_DIFF"} else 1]:
+                read = _driver_target(armature, variable.type, target)
+                if read is not None:
+                    found.setdefault(match.group(1), set()).add(read.bone)
+    return {key: tuple(sorted(bones)) for key, bones in found.items()}
 
 
 def _driver_target(armature, kind: str, target) -> DriverInput | None:
