@@ -48,6 +48,38 @@ def subdivided(armature, hand_obj):
     # Subdivision Surface level 2 after the Armature modifier, as on nearly every production hand.
     hand_obj.modifiers.new("Subdivision", "SUBSURF").levels = 2
 
+def one_mesh_body(armature, hand_obj):
+    # The hand inside a body, as every downloaded character has it: the forearm hangs from an upper arm
+    # that hangs from a chest, and one mesh holds them all (a box for each, weighted to its bone, added
+    # after the hand's vertices so that the hand's faces keep their indices).
+    import bmesh
+    from mathutils import Vector
+    bpy.context.view_layer.objects.active = armature
+    bpy.ops.object.mode_set(mode="EDIT")
+    bones = armature.data.edit_bones
+    forearm = bones["forearm"]
+    axis = (forearm.tail - forearm.head).normalized()
+    upper, chest = bones.new("upper_arm"), bones.new("chest")
+    upper.head, upper.tail = forearm.head - 0.28 * axis, forearm.head
+    chest.head = upper.head - 0.2 * axis - Vector((0, 0, 0.1))
+    chest.tail = chest.head + Vector((0, 0, 0.3))
+    upper.parent, forearm.parent = chest, upper
+    bpy.ops.object.mode_set(mode="OBJECT")
+    bm = bmesh.new()
+    bm.from_mesh(hand_obj.data)
+    added = {}
+    for name, size in (("upper_arm", 0.05), ("chest", 0.25)):
+        bone = armature.data.bones[name]
+        middle = armature.matrix_world @ ((bone.head_local + bone.tail_local) / 2)
+        place = hand_obj.matrix_world.inverted() @ Matrix.Translation(middle)
+        before = len(bm.verts)
+        bmesh.ops.create_cube(bm, size=size, matrix=place)
+        added[name] = list(range(before, len(bm.verts)))
+    bm.to_mesh(hand_obj.data)
+    bm.free()
+    for name, rows in added.items():
+        hand_obj.vertex_groups.new(name=name).add(rows, 1.0, "REPLACE")
+
 def restyled(context, where):
     kit, hand_obj, mug = build(context, where)
     STYLE(hand_obj.parent, hand_obj)
@@ -201,3 +233,26 @@ key.value = 0.5
     assert "all 4 patches touch" in found["solved"], found["solved"]
     assert "'Corrective' by index_2" in found["refused"], found["refused"]
     assert found["moved"] == []
+
+
+def test_a_hand_inside_a_one_mesh_body_is_solved_from_its_wrist(tmp_path):
+    """One mesh for hand, arm and chest, the forearm hanging from the arm: the panel once said the chest
+    "moves and turns the hand" and the solve moved it. The hand bone is the wrist and the control that
+    moves it; everything above keeps Blender's pose exactly."""
+    found = run_blender(
+        """
+        from contact_edit_addon import posing
+        done = demo.run(tempfile.mkdtemp(), render=False)
+        scene = bpy.context.scene
+        armature = scene.contact_edit.hand.parent
+        kept = {n: np.abs(np.array(armature.pose.bones[n].matrix_basis) - np.eye(4)).max()
+                for n in ("chest", "upper_arm", "forearm")}
+        result({"touching": sorted(done.touching), "summary": done.summary, "kept": kept,
+                "panel": list(posing.rig_report(scene).lines)})
+        """,
+        tmp_path,
+        setup=RESTYLED.replace("STYLE(", "one_mesh_body("),
+    )
+    assert found["panel"][:2] == ["Wrist: hand", "hand moves and turns the hand"]
+    assert max(found["kept"].values()) == 0.0, found["kept"]
+    assert len(found["touching"]) == 6, found["summary"]

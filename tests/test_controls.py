@@ -3,6 +3,8 @@ as an armature must pose exactly as solver.Rig does, derivatives must match fini
 analysis must find the wrist, the root control and the finger controls of a Rigify-like mechanism, and name
 what it cannot reproduce."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -74,6 +76,25 @@ def test_the_wrist_root_control_and_finger_controls_of_a_plain_hand(human):
     assert rig.names == hand.rig.names and rig.n_dofs == hand.rig.n_dofs
     assert not rig.locked.any() and rig.plan.ok
     assert np.allclose(rig.start[6:], theta0[6:]) and not rig.start[:6].any()
+
+
+def test_a_forearm_hanging_from_an_arm_keeps_its_pose():
+    """On a plain rig whose forearm hangs from an upper arm (every body rig; the mesh weighted to the
+    forearm too, as a character's one mesh is), the hand bone is the root control: moving the forearm
+    would open the elbow. A forearm stub at the top of the armature (the procedural hands) still carries
+    the hand, as above."""
+    hand = make_hand("human")
+    plain = plain_armature(hand.rig, hand.rig.rest)
+    forearm = plain["forearm"]
+    above = np.eye(4)
+    above[:3, 3] = forearm.bone.matrix_local[:3, 3] - forearm.bone.matrix_local[:3, 1] * 0.25
+    upper = PoseBone(bone=Bone("upper_arm", above, 0.25, rotation_mode="XYZ"), matrix=above, deform=True)
+    hung = replace(forearm, bone=Bone("forearm", forearm.bone.matrix_local, forearm.bone.length,
+                                      parent="upper_arm", rotation_mode="XYZ"))  # fmt: skip
+    armature = Armature([upper, hung, *[plain[n] for n in hand.rig.names[1:]]], name="body")
+    plan = armature.plan(hand.rig.names, contact_bones=["index_3", "thumb_3"])
+    assert (plan.hand_root, plan.root) == ("hand", "hand")
+    assert "forearm" not in plan.controls and "forearm" not in plan.needed
 
 
 def test_a_plain_rig_poses_exactly_as_solver_rig(human):

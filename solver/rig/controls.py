@@ -280,9 +280,11 @@ class Armature:
 
     def root_control(self, hand_root: str, skin_bones: Sequence[str] = ()) -> str | None:
         """The control that moves the wrist: from the hand root, the nearest bone it depends on (following
-        replacing constraints to their targets, else parents) that has all three rotations free; then on up
-        through plain deforming parents of that bone that also deform the skin (``skin_bones``), so that a
-        forearm stub weighted in the hand's mesh moves with it. None if there is none."""
+        replacing constraints to their targets, else parents) that has all three rotations free; then up to
+        its parent if that is a plain deforming bone of the skin (``skin_bones``) at the top of the
+        armature, so that a forearm stub modelled with the hand moves with it. A forearm hanging from an
+        upper arm keeps its pose (moving it would open the elbow), as does everything above it in a body.
+        None if there is none."""
         skin = set(skin_bones)
         name, seen = hand_root, set()
         while any(self.bones[name].lock_rotation):
@@ -290,14 +292,13 @@ class Armature:
             name = self._lead(self.bones[name])
             if name is None or name in seen:
                 return None
-        while True:
-            up = self.bones[name].parent
-            if up is None or up not in skin:
-                return name
-            p = self.bones[up]
-            if p.constraints or any(p.lock_rotation) or not p.deform:
-                return name
-            name = up
+        up = self.bones[name].parent
+        if up is None or up not in skin:
+            return name
+        p = self.bones[up]
+        if p.parent is not None or p.constraints or any(p.lock_rotation) or not p.deform:
+            return name
+        return up
 
     def _lead(self, b: PoseBone) -> str | None:
         """The bone that mostly decides ``b``'s place: the target of its last replacing constraint, or
