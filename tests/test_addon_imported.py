@@ -114,22 +114,38 @@ def test_the_demo_grasp_comes_out_the_same_on_a_restyled_example(tmp_path, style
         assert found["scale"] == pytest.approx([0.01] * 3)
 
 
-def test_a_hand_mesh_mirrored_against_its_armature_is_refused_by_name(tmp_path):
+def test_what_cannot_be_solved_or_transferred_truly_is_refused_by_name(tmp_path):
+    """A hand mesh mirrored against its own armature, and a mug scaled unevenly (a transfer onto it would
+    come out stretched one way), are refused naming the object, and nothing is stored."""
     found = run_blender(
         """
-        from contact_edit_addon import bridge
+        from contact_edit_addon import bridge, store
         kit, hand_obj, mug = build(bpy.context, np.zeros(3))
+        face = demo._pad_centre(kit, "index_3")
+        centre = kit.mesh.vertices[kit.mesh.faces[face]].mean(0)
+        dab = {"name": "", "location": bridge.object_to_world(hand_obj, centre)[0], "polygon": int(face),
+               "radius": 0.005}
+        bpy.ops.contact_edit.paint(name="tip", source="STROKE", object_name=hand_obj.name, stroke=[dab])
+        mug.scale = (1, 2, 1)
+        try:
+            bpy.ops.contact_edit.transfer(patch="tip", location=(0.04, 0, 0.05), direction=(0, 0, 1))
+        except RuntimeError as err:
+            uneven = str(err)
+        mug.scale = (1, 1, 1)
         hand_obj.scale = (-1, 1, 1)
         bpy.context.view_layer.update()
         try:
             bridge.hand_rig(hand_obj)
         except bridge.BridgeError as err:
-            result(str(err))
+            mirrored = str(err)
+        result({"uneven": uneven, "mirrored": mirrored, "stored": list(store.load(mug, layer="CONTACTS"))})
         """,
         tmp_path,
         setup=RESTYLED,
     )
-    assert "'Hand' is placed mirrored against its armature 'Hand rig'" in found
+    assert "'Mug' is scaled unevenly (1, 2, 1)" in found["uneven"]
+    assert found["stored"] == []
+    assert "'Hand' is placed mirrored against its armature 'Hand rig'" in found["mirrored"]
 
 
 def test_a_hand_subdivided_after_its_armature_is_solved_on_its_cage(tmp_path):

@@ -33,6 +33,7 @@ from .mesh import (
     select_elements,
     selected_vertices,
     trimesh,
+    uneven_scale,
     uniform_scale,
     world_to_object,
 )
@@ -63,6 +64,7 @@ __all__ = [
     "set_bone_rotation",
     "to_quaternion",
     "trimesh",
+    "uneven_scale",
     "uniform_scale",
     "world_to_object",
 ]

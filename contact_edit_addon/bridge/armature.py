@@ -28,13 +28,11 @@ from solver.rig import Armature, ControlRig, Plan
 from solver.rotations import euler_to_matrix, matrix_to_quaternion, quaternion_to_axis_angle
 
 from .errors import BridgeError
-from .mesh import cached_trimesh, deformed_vertices, shaped_vertices, vertex_group_weights
+from .mesh import cached_trimesh, deformed_vertices, shaped_vertices, uneven_scale, vertex_group_weights
 from .rigs import driven_keys, read_armature
 
 #: Blender's Armature modifier leaves a vertex in place when its deform weights sum to no more than this.
 MIN_TOTAL_WEIGHT = 1e-4
-#: Relative tolerance for an armature's scale to count as uniform.
-UNIFORM_SCALE_TOLERANCE = 1e-5
 
 
 @dataclass(frozen=True)
@@ -261,12 +259,8 @@ def _hand_to_armature(hand: bpy.types.Object, armature: bpy.types.Object) -> np.
             hand.name,
         )
     A = np.array(armature.matrix_world)
-    columns = np.linalg.norm(A[:3, :3], axis=0)
-    gram = A[:3, :3].T @ A[:3, :3]
-    if np.abs(gram - np.diag(columns**2)).max() > UNIFORM_SCALE_TOLERANCE * columns.max() ** 2 or (
-        np.ptp(columns) > UNIFORM_SCALE_TOLERANCE * columns.max()
-    ):
-        scale = ", ".join(f"{c:.4g}" for c in columns)
+    scale = uneven_scale(armature)
+    if scale is not None:
         raise BridgeError(
             f"the armature '{armature.name}' has non-uniform scale ({scale}), which distorts its bones; "
             "apply its scale (Ctrl+A, Scale) first",

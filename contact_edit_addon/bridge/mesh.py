@@ -22,6 +22,9 @@ from geodesics import MeshError, SurfacePoints, TriMesh
 
 from .errors import BridgeError
 
+#: Relative tolerance for an object's scale to count as uniform.
+UNIFORM_SCALE_TOLERANCE = 1e-5
+
 _cache: dict[tuple, TriMesh] = {}
 #: Meshes kept: a hand and an object, each at rest and in the armature's space, with room for more.
 _CACHE_SIZE = 16
@@ -243,6 +246,19 @@ def uniform_scale(obj: bpy.types.Object) -> float:
     """The object's scale factor (world length per object-space length; the cube root of the volume
     scale, for objects scaled unevenly)."""
     return float(abs(np.linalg.det(np.array(obj.matrix_world)[:3, :3])) ** (1.0 / 3.0))
+
+
+def uneven_scale(obj: bpy.types.Object) -> str | None:
+    """The object's world scale per axis as text ("1, 2, 1") if it is not uniform (scaled unevenly or
+    sheared, here or by a parent), else None."""
+    A = np.array(obj.matrix_world)[:3, :3]
+    columns = np.linalg.norm(A, axis=0)
+    gram = A.T @ A
+    if np.abs(gram - np.diag(columns**2)).max() > UNIFORM_SCALE_TOLERANCE * columns.max() ** 2 or (
+        np.ptp(columns) > UNIFORM_SCALE_TOLERANCE * columns.max()
+    ):
+        return ", ".join(f"{c:.4g}" for c in columns)
+    return None
 
 
 def handedness(obj: bpy.types.Object) -> int:

@@ -150,6 +150,14 @@ class CONTACT_EDIT_OT_transfer(HotkeyTool, bpy.types.Operator):
         colours the new object patches take from their hand patches."""
         settings = context.scene.contact_edit
         target = settings.target
+        for obj in (settings.hand, target):
+            scale = bridge.uneven_scale(obj)
+            if scale is not None:
+                raise bridge.BridgeError(
+                    f"'{obj.name}' is scaled unevenly ({scale}), which would stretch the transferred patches "
+                    "one way; apply its scale (Ctrl+A, Scale) first",
+                    obj.name,
+                )
         mesh = object_set.mesh
         start = nearest_point(target, mesh, self.location)
         direction = surface_direction(target, mesh, start, self.direction)
