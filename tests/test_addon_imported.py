@@ -156,8 +156,9 @@ def test_a_hand_subdivided_after_its_armature_is_solved_on_its_cage(tmp_path):
     found = run_blender(
         """
         from scipy.spatial import cKDTree
-        from contact_edit_addon import posing
+        from contact_edit_addon import bridge, posing, store
         done = demo.run(tempfile.mkdtemp(), render=False)
+        kit_face_vertex = 1000  # a vertex on the back of the hand
         scene = bpy.context.scene
         hand_obj = scene.contact_edit.hand
         problem = posing.problem(scene)
@@ -169,8 +170,20 @@ def test_a_hand_subdivided_after_its_armature_is_solved_on_its_cage(tmp_path):
         ends = np.cumsum(problem.sizes)
         pairs = zip(problem.pairs, problem.sizes, ends)
         medians = {h: float(np.median(gap[e - n:e])) for (h, _), n, e in pairs}
+        # The overlay draws the patches where the subdivided skin is, not where the rest shape is.
+        from contact_edit_addon.ui import overlays
+        cage = bridge.mesh.deformed_vertices(hand_obj)
+        drawn = overlays.shown_vertices(hand_obj, bpy.context.evaluated_depsgraph_get())
+        rest = bridge.mesh_arrays(hand_obj.data)[0]
+        # A dab where a ray meets the subdivided skin: ray_cast's polygon is the subdivided mesh's (-1).
+        hit = shown[kit_face_vertex] @ H[:3, :3].T + H[:3, 3]
+        bpy.ops.contact_edit.paint(name="dabbed", source="STROKE", object_name=hand_obj.name,
+                                   stroke=[{"name": "", "location": hit, "polygon": -1, "radius": 0.004}])
+        dabbed = store.load(hand_obj, layer="CONTACTS")["dabbed"].positions()
         result({"touching": sorted(done.touching), "medians": medians, "summary": done.summary,
-                "shown": len(shown), "own": len(hand_obj.data.vertices)})
+                "shown": len(shown), "own": len(hand_obj.data.vertices),
+                "drawn": float(np.abs(drawn - cage).max()), "rest": float(np.abs(rest - cage).max()),
+                "dabbed": float(np.linalg.norm(rest[kit_face_vertex] - dabbed, axis=1).min())})
         """,
         tmp_path,
         setup=RESTYLED.replace("STYLE(", "subdivided("),
@@ -179,6 +192,8 @@ def test_a_hand_subdivided_after_its_armature_is_solved_on_its_cage(tmp_path):
     assert len(found["touching"]) == 6, found["summary"]
     assert "from the solved pose" not in found["summary"]
     assert max(found["medians"].values()) < 2e-3, found["medians"]
+    assert found["drawn"] < 2e-3 < 1e-2 < found["rest"]  # on the skin shown, within the smoothing
+    assert found["dabbed"] < 4e-3  # the dab's patch is on the mesh where the ray met the skin
 
 
 def test_modifiers_after_the_armature_are_solved_through_or_named(tmp_path):

@@ -307,6 +307,30 @@ def test_a_grasp_painted_and_placed_by_eye_touches_and_a_turned_patch_keeps_the_
     assert {"placed", "solved", "solved_again"} <= set(grasp.shots)
 
 
+@pytest.fixture(scope="module")
+def grasp_imported(blender, extension, tmp_path_factory):
+    if blender.suite != "trixie":  # one Blender is enough for the rig's import style (CI time)
+        pytest.skip("the imported-style grasp runs in Blender 4.3's window only")
+    return session(blender, extension, "grasp_imported", tmp_path_factory)
+
+
+def test_the_grasp_on_an_fbx_style_subdivided_hand_touches_as_on_the_example(grasp_imported):
+    """Issue 36's window case: the same session on the Example as Blender's FBX importer brings a hand
+    (armature turned 90° and scaled 0.01, bones and mesh in centimetres) with a Subdivision Surface after
+    the Armature modifier. The brush paints on the subdivided skin, the transfers keep true size, every
+    pad touches, and the turned patch's re-solve keeps the hand."""
+    results = grasp_imported.results
+    assert [name for name, points in results["painted"]] == ["index tip", "middle tip", "thumb tip", "palm"]
+    assert all(points > 30 for _, points in results["painted"])
+    for name, (off, turned) in results["misplaced"].items():
+        assert 1.0 < off < 5.0 and turned < 20.0, name
+    first = results["first"]
+    assert "all 4 patches touch" in first["summary"] and first["deepest"] < 0.5e-3, first["summary"]
+    assert "from the solved pose" not in first["summary"]
+    assert results["second_turn"] < 30.0, results["second"]["summary"]
+    assert {"index tip", "thumb tip", "palm"} <= set(results["second"]["touching"])
+
+
 # ------------------------------------------------------------------------------------- the puppet device
 
 

@@ -226,9 +226,20 @@ def points_from_vertices(obj: bpy.types.Object, mesh: TriMesh, vertices: np.ndar
 
 def points_from_hits(mesh: TriMesh, polygons: np.ndarray, locations: np.ndarray) -> SurfacePoints:
     """Surface points where rays hit polygons (Blender's ray_cast gives a polygon index and an
-    object-space location): each is placed in the triangle of its polygon that holds it."""
+    object-space location): each is placed in the triangle of its polygon that holds it. A polygon of -1
+    is unknown (a hit on a subdivided surface, whose polygons are not the mesh's): the surface point
+    nearest the location is taken."""
     polygons = np.asarray(polygons, np.int64)
     locations = np.asarray(locations, np.float64).reshape(-1, 3)
+    unknown = polygons < 0
+    if unknown.any():
+        faces, bary = np.empty(len(polygons), np.int64), np.empty((len(polygons), 3))
+        for rows, found in (
+            (unknown, SurfacePoints.nearest(mesh, locations[unknown])),
+            (~unknown, points_from_hits(mesh, polygons[~unknown], locations[~unknown])),
+        ):
+            faces[rows], bary[rows] = found.faces, found.bary
+        return SurfacePoints(faces, bary)
     owner = mesh.triangle_polygon
     start = np.searchsorted(owner, polygons)
     count = np.searchsorted(owner, polygons, side="right") - start

@@ -46,7 +46,9 @@ class CONTACT_EDIT_PG_stroke_point(bpy.types.PropertyGroup):
     "radius": r}, ...]`` (as for Blender's own paint strokes, each item needs every key)."""
 
     location: bpy.props.FloatVectorProperty(name="Location", size=3, description="World space")
-    polygon: bpy.props.IntProperty(name="Polygon", min=0)
+    polygon: bpy.props.IntProperty(
+        name="Polygon", min=-1, description="The mesh's polygon hit; -1: unknown (the nearest surface point)"
+    )
     radius: bpy.props.FloatProperty(name="Radius", min=0.0, description="World units; 0: just this point")
 
 
@@ -197,6 +199,8 @@ class CONTACT_EDIT_OT_paint(Background, HotkeyTool, bpy.types.Operator):
         else:
             self.view_direction = -np.array(rv3d.view_matrix.inverted().col[2][:3])
         inverse = self._object.matrix_world.inverted()
+        shown = self._object.evaluated_get(context.evaluated_depsgraph_get()).data
+        refined = len(shown.polygons) != len(self._object.data.polygons)  # ray_cast's polygons are not ours
         added = []
         for spot in spots:
             origin = view3d_utils.region_2d_to_origin_3d(region, rv3d, spot)
@@ -208,7 +212,7 @@ class CONTACT_EDIT_OT_paint(Background, HotkeyTool, bpy.types.Operator):
                 continue
             world = np.array(self._object.matrix_world @ location)
             item = self.stroke.add()
-            item.location, item.polygon = world, polygon
+            item.location, item.polygon = world, -1 if refined else polygon
             item.radius = float(overlays.pixel_size(world[None], view)[0] * radius)
             added.append(item)
         if added:

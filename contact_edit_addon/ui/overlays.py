@@ -130,8 +130,9 @@ def _patches(obj) -> tuple[list[tuple], dict, tuple]:
 
 def shown_vertices(obj, depsgraph) -> np.ndarray | None:
     """(n, 3) object-space vertex positions of the shape the viewport shows for ``obj``: the edit cage in
-    Edit Mode, else the evaluated mesh (the rest shape if modifiers change the vertex count); None if
-    the mesh being edited no longer has the vertices its contacts were made on."""
+    Edit Mode, else the evaluated mesh's (its first n when a Subdivision Surface after the armature
+    refines it; the rest shape if other modifiers change the vertex count); None if the mesh being
+    edited no longer has the vertices its contacts were made on."""
     count = len(obj.data.vertices)
     if obj.mode == "EDIT":
         edited = bmesh.from_edit_mesh(obj.data)
@@ -139,11 +140,24 @@ def shown_vertices(obj, depsgraph) -> np.ndarray | None:
             return None
         return np.fromiter((c for v in edited.verts for c in v.co), np.float64, 3 * count).reshape(-1, 3)
     evaluated = obj.evaluated_get(depsgraph).data
-    if len(evaluated.vertices) != count:
+    if len(evaluated.vertices) != count and not _keeps_vertices_first(obj):
         return bridge.mesh_arrays(obj.data)[0]
-    vertices = np.empty(3 * count)
+    vertices = np.empty(3 * len(evaluated.vertices))
     evaluated.vertices.foreach_get("co", vertices)
-    return vertices.reshape(-1, 3)
+    return vertices.reshape(-1, 3)[:count]
+
+
+#: Modifiers whose result starts with the mesh's own vertices, in order (a Subdivision Surface puts each
+#: at its place on the smooth surface), so that the mesh's faces drawn on them follow what is shown.
+_VERTICES_FIRST = {"SUBSURF", "TRIANGULATE", "MIRROR", "WEIGHTED_NORMAL"}
+
+
+def _keeps_vertices_first(obj) -> bool:
+    """Whether the modifiers that make ``obj``'s evaluated mesh bigger than its own all keep its own
+    vertices first: every modifier shown after its Armature modifier is one of :data:`_VERTICES_FIRST`
+    (and there is one)."""
+    later = bridge.after_armature(obj)
+    return bool(later) and all(m.type in _VERTICES_FIRST for m in later)
 
 
 def placer(obj, vertices, triangles, view):

@@ -49,7 +49,7 @@ def pad_stroke(hand, procedural, view, bone: str, length: float) -> list[tuple[f
     face nearest the middle of the bone's palm-side skin, on ``procedural``, the solver's hand the
     Example's mesh was made from), along the bone by ``length`` metres."""
     face = addon("commands.demo")._pad_centre(procedural, bone)
-    middle = procedural.mesh.vertices[procedural.mesh.faces[face]].mean(0)
+    middle = bridge.mesh_arrays(hand.data)[0][procedural.mesh.faces[face]].mean(0)
     centre = bridge.object_to_world(hand, middle[None])[0]
     eye = np.array(view.rv3d.view_rotation.to_matrix().col[2])
     pose = hand.parent.pose.bones[bone]
@@ -119,11 +119,18 @@ def solve(s, view, label: str):
 
 
 def steps(s):
+    yield from grasp(s)
+
+
+def grasp(s, restyle=None):
+    """The session, on the Example as it is added or as ``restyle(hand, armature)`` changes it."""
     rng = np.random.default_rng(7)
     bpy.context.preferences.view.smooth_view = 0  # views change at once (no animation to wait out)
     view = s.view3d()
     hand, mug = example(view)
     armature = hand.parent
+    if restyle is not None:
+        restyle(hand, armature)
     settings = bpy.context.scene.contact_edit
 
     # Paint: the hand alone (local view, numpad slash), seen from its palm side (numpad 3, from the right).
