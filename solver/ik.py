@@ -67,6 +67,7 @@ from dataclasses import dataclass, field, replace
 
 import nlopt
 import numpy as np
+from scipy import sparse
 
 from geodesics import SurfacePoints
 
@@ -316,6 +317,20 @@ def _contact_weights(values, k: int) -> np.ndarray:
     return c
 
 
+def movable_vertices(skin: SkinnedMesh) -> np.ndarray:
+    """Indices of the skin's vertices that a solve can move: those weighted to a deformer whose skinning
+    matrix changes with some unlocked DOF. The others (a one-mesh character's chest, which keeps Blender's
+    pose) add only a constant to a keep-out term, so it leaves them out."""
+    rig = skin.rig
+    step = np.where(rig.locked, 0.0, np.where(rig.is_rotation, 0.3, 0.1 * skin.size))
+    before = rig.kinematics(rig.rest, derivatives=False).skinning
+    after = rig.kinematics(rig.rest + step, derivatives=False).skinning
+    moved = np.flatnonzero(np.abs(after - before).max(axis=(1, 2)) > 0)
+    weights = sparse.csc_matrix(skin.deformer_weights)[:, moved].tocsr()
+    weights.eliminate_zeros()
+    return np.flatnonzero(np.diff(weights.indptr) > 0)
+
+
 def free_dofs(rig, free=None) -> np.ndarray:
     """(k,) indices of the DOFs a solve may change: those flagged in ``free`` ((d,) bool; default all)
     that the rig does not lock. Raises SolverError for a mask of another length."""
@@ -441,7 +456,7 @@ class ContactIK:
         if keep_out is not None:
             inside = NarrowBand(keep_out, KEEP_OUT_BAND * self.unit).evaluate
             self._solids.append(("penetration", self.weights.o, inside))
-        extra = np.arange(hand.mesh.n_vertices) if self._solids else None
+        extra = movable_vertices(hand) if self._solids else None
         self._skin = hand.point_skin(sets, extra)
         # Internal variables: locations in units of u, angles in radians.
         self._scale = np.where(rig.is_rotation, 1.0, self.unit)

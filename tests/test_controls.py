@@ -10,6 +10,7 @@ import pytest
 
 from solver import ContactIK, SkinnedMesh, SolverError
 from solver.hands import make_hand
+from solver.ik import movable_vertices
 from solver.rig.bones import Bone
 from solver.rig.constraints import Constraint, Target
 from solver.rig.control_rig import ControlRig, rotation_vector_matrix
@@ -95,6 +96,12 @@ def test_a_forearm_hanging_from_an_arm_keeps_its_pose():
     plan = armature.plan(hand.rig.names, contact_bones=["index_3", "thumb_3"])
     assert (plan.hand_root, plan.root) == ("hand", "hand")
     assert "forearm" not in plan.controls and "forearm" not in plan.needed
+    # Its skin stays where Blender has it, so keep-out leaves out exactly the vertices weighted to it alone.
+    W = hand.weights.toarray()
+    forearm_only = (W[:, 0] > 0) & (W[:, 1:].sum(axis=1) == 0)
+    assert 0 < forearm_only.sum() < len(W)
+    skin = SkinnedMesh(hand.mesh, ControlRig(plan), hand.weights)
+    np.testing.assert_array_equal(movable_vertices(skin), np.flatnonzero(~forearm_only))
 
 
 def test_a_plain_rig_poses_exactly_as_solver_rig(human):
