@@ -127,10 +127,14 @@ def pose_scene(
     with _naming(scene_path):
         problem = posing.problem(scene, stage)
         result = problem.ik.solve(problem.theta0, problem.free, report, max_evaluations)
-    armature = problem.posed.armature_object()
-    animated = armature.animation_data is not None and armature.animation_data.action is not None
-    problem.apply(result.theta, scene.frame_current if frame is not None or animated else None)
+        armature = problem.posed.armature_object()
+        animated = armature.animation_data is not None and armature.animation_data.action is not None
+        keyed = scene.frame_current if frame is not None or animated else None
+        problem, result = posing.settle(scene, problem, result, stage, keyed)
     settings.last_solve = posing.summary(scene, problem, result)
+    off = posing.rig_mismatch(scene, problem, result.theta)
+    if off:
+        settings.last_solve += f"; {off}"
     _save_atomically(output, quiet)
     return settings.last_solve
 

@@ -95,7 +95,8 @@ class CONTACT_EDIT_OT_solve(Background, HotkeyTool, bpy.types.Operator):
         return Plan("Solving", work, commit, live=live, thread="contact-edit solve")
 
     def _finish(self, context, problem, result, outcome: str | None = None) -> None:
-        problem.apply(result.theta, context.scene.frame_current if self.keyframe else None)
+        frame = context.scene.frame_current if self.keyframe else None
+        problem, result = posing.settle(context.scene, problem, result, self.stage, frame)
         message = posing.summary(context.scene, problem, result, outcome)
         off = posing.rig_mismatch(context.scene, problem, result.theta)
         if off:
