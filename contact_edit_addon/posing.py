@@ -128,7 +128,7 @@ def problem(scene: bpy.types.Scene, stage: str = "ALL") -> Problem:
     object_set = store.load(target, layer="CONTACTS")
     hand_points, object_points, pairs = contact_pairs(hand_set, object_set)
     posed = bridge.posed_hand(hand, hand_set.mesh.faces, hand_points, settings.hand_root)
-    _reports[scene.name] = describe_plan(posed.plan)
+    _reports[scene.name] = describe_plan(posed.plan, hand)
     M = object_in_armature(target, posed)
     positions = object_points.positions(object_set.mesh) @ M[:3, :3].T + M[:3, 3]
     normals = object_set.mesh.face_normals[object_points.faces] @ np.linalg.inv(M[:3, :3])
@@ -203,7 +203,9 @@ def rig_mismatch(scene: bpy.types.Scene, problem: Problem, theta) -> str | None:
     if off <= FOLLOW_TOLERANCE * problem.posed.skin.size:
         return None
     approximated = problem.posed.plan.approximated
-    later = [m.name for m in bridge.after_armature(bpy.data.objects[problem.posed.hand])]
+    later = [
+        m.name for m in bridge.after_armature(bpy.data.objects[problem.posed.hand]) if m.type not in REFINING
+    ]
     reasons = [f"{', '.join(approximated[:2])} taken to follow the hand"] if approximated else []
     reasons += [f"{', '.join(later)} after the Armature modifier"] if later else []
     why = f" ({'; '.join(reasons)})" if reasons else ""
@@ -350,15 +352,21 @@ def check_rig(scene: bpy.types.Scene) -> RigReport:
             SurfacePoints.concatenate(points) if points else None,
             settings.hand_root,
         )
-        report = describe_plan(plan)
+        report = describe_plan(plan, hand)
     except (bridge.BridgeError, ContactError, SolverError) as err:
         report = RigReport(False, (str(err),))
     _reports[scene.name] = report
     return report
 
 
-def describe_plan(plan) -> RigReport:
-    """The panel's lines for a :class:`solver.rig.controls.Plan`."""
+#: Modifiers after the Armature modifier that only refine, re-triangulate, mirror or re-shade the skin it
+#: deforms: the solve works on that skin (the cage) and Blender shows it as they make it.
+REFINING = {"SUBSURF", "TRIANGULATE", "WEIGHTED_NORMAL", "NORMAL_EDIT", "MIRROR", "EDGE_SPLIT"}
+
+
+def describe_plan(plan, hand: bpy.types.Object | None = None) -> RigReport:
+    """The panel's lines for a :class:`solver.rig.controls.Plan` (and the modifiers of ``hand`` after its
+    Armature modifier: what is solved on the cage they refine, and what moves the skin unmodelled)."""
     lines = [f"Wrist: {plan.hand_root}"]
     if plan.root is None:
         lines.append("Nothing moves the wrist; only the fingers are solved")
@@ -373,6 +381,13 @@ def describe_plan(plan) -> RigReport:
     if plan.approximated:
         shown = ", ".join(plan.approximated[:2]) + (", …" if len(plan.approximated) > 2 else "")
         lines.append(f"Taken to follow the hand rigidly: {shown}")
+    later = bridge.after_armature(hand) if hand is not None else []
+    refining = [m.name for m in later if m.type in REFINING]
+    moving = [m.name for m in later if m.type not in REFINING]
+    if refining:
+        lines.append(f"Solved on the skin before {', '.join(refining)}")
+    if moving:
+        lines.append(f"Not modelled: {', '.join(moving)} after the Armature modifier")
     for blocker in plan.blockers[:4]:
         lines.append(f"Blocked: {blocker}")
     if len(plan.blockers) > 4:

@@ -210,17 +210,17 @@ def test_modifiers_after_the_armature_are_solved_through_or_named(tmp_path):
         plain = scene.contact_edit.last_solve
         bridge.apply_pose(posed, posed.rig.rest)
         hand.modifiers.new("Corrective", "CORRECTIVE_SMOOTH")
+        panel = list(posing.check_rig(scene).lines)  # said when the hand is chosen, before any solve
         bpy.ops.contact_edit.solve(stage="ALL")
-        result({"plain": plain, "smoothed": scene.contact_edit.last_solve})
+        result({"plain": plain, "smoothed": scene.contact_edit.last_solve, "panel": panel})
         """,
         tmp_path,
         setup=SETUP + MOULD,
     )
     assert "all 4 patches touch" in found["plain"] and "from the solved pose" not in found["plain"]
-    assert (
-        "from the solved pose (Triangulate, WeightedNormal, Corrective after the Armature modifier)"
-        in (found["smoothed"])
-    )
+    assert "Solved on the skin before Triangulate, WeightedNormal" in found["panel"]
+    assert "Not modelled: Corrective after the Armature modifier" in found["panel"]
+    assert "from the solved pose (Corrective after the Armature modifier)" in found["smoothed"]
 
 
 def test_a_constant_shape_key_is_solved_exactly_and_a_driven_one_is_refused_by_name(tmp_path):
