@@ -4,6 +4,7 @@ rebuilt the way imported and mirrored files have it. World-space geometry is the
 the same grasp must come out: every pad touching, no skin more than half a millimetre inside."""
 
 import importlib.util
+from pathlib import Path
 
 import pytest
 
@@ -12,8 +13,12 @@ from .blender import run_blender
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("bpy") is None, reason="needs bpy (the dev extra)")
 
 # The Example, restyled after it is built: the hand and the mug stay where they are in the world.
-RESTYLED = """
+SESSIONS = Path(__file__).parent / "window" / "sessions"  # styles.py, shared with the window sessions
+RESTYLED = (
+    f"import sys\nsys.path.insert(0, {str(SESSIONS)!r})\n"
+    + """
 import tempfile
+from styles import fbx_style
 import numpy as np
 from mathutils import Matrix
 import contact_edit_addon
@@ -21,20 +26,6 @@ contact_edit_addon.register()
 from contact_edit_addon import assets
 from contact_edit_addon.commands import demo
 build = assets.example_scene
-
-def fbx_style(armature, hand_obj):
-    # As Blender's FBX importer brings a Mixamo character: the armature object turned 90 degrees about X
-    # and scaled 0.01, its bones and the mesh in centimetres, the mesh a child with no transform of its own.
-    A, H = np.array(armature.matrix_world), np.array(hand_obj.matrix_world)
-    new = A @ np.array(Matrix.Rotation(np.pi / 2, 4, "X") @ Matrix.Scale(0.01, 4))
-    bpy.context.view_layer.objects.active = armature
-    bpy.ops.object.mode_set(mode="EDIT")
-    armature.data.transform(Matrix(np.linalg.inv(new) @ A))
-    bpy.ops.object.mode_set(mode="OBJECT")
-    armature.matrix_world = Matrix(new)
-    hand_obj.matrix_parent_inverse = Matrix.Identity(4)
-    hand_obj.matrix_basis = Matrix.Identity(4)
-    hand_obj.data.transform(Matrix(np.linalg.inv(new) @ H))
 
 def mirrored_rig(armature, hand_obj):
     # A left hand made from the right one by the armature's scale -1 (mirrored across the plane through
@@ -88,6 +79,7 @@ def restyled(context, where):
 
 demo.assets.example_scene = restyled
 """
+)
 
 
 @pytest.mark.parametrize("style", ["fbx_style", "mirrored_rig", "mirrored_object"])

@@ -197,7 +197,23 @@ def test_rigs_the_solver_cannot_reproduce_are_refused_by_name(tmp_path):
 # A hand solved back onto a mould of itself: the object is the hand's own surface at a ground-truth pose,
 # with its faces flipped (so its normals face the hand, as an object's do), and patches on the same
 # vertices of both, paired point for point.
-MOULD = """
+PAIRED_ON_MOULD = """
+def pair_on_mould(hand, mould, kit):
+    # Four palm-side pads of the procedural hand's bones, on the same vertices of the hand and the mould.
+    hand_set, mould_set = store.load(hand), store.load(mould)
+    for b in ("index_3", "thumb_3", "hand", "pinky_2"):
+        vertices = np.unique(kit.mesh.faces[kit.palmar_faces(kit.rig.bone_index(b))])
+        a = SurfacePoints.from_vertices(hand_set.mesh, vertices)
+        m = SurfacePoints.from_vertices(mould_set.mesh, vertices)
+        patch = lambda mesh, points: ContactPatch(mesh, points, farthest_pair_axis(mesh, points))
+        hand_set = hand_set.add(b, patch(hand_set.mesh, a)).pair(b, b)
+        mould_set = mould_set.add(b, patch(mould_set.mesh, m)).pair(b, b)
+    store.save(hand, hand_set); store.save(mould, mould_set)
+"""
+
+MOULD = (
+    PAIRED_ON_MOULD
+    + """
 posed = bridge.posed_hand(hand, bridge.trimesh(hand).faces)
 rng = np.random.default_rng(3)
 truth = posed.rig.clip(0.5 * random_pose(posed.rig, rng))
@@ -208,16 +224,9 @@ bridge.apply_pose(posed, posed.rig.rest)
 faces = bridge.trimesh(hand).faces
 mould = assets.mesh_object("Mould", __import__("geodesics").TriMesh(cast, faces[:, ::-1]), scene.collection)
 scene.contact_edit.target = mould
-hand_set, mould_set = store.load(hand), store.load(mould)
-for b in ("index_3", "thumb_3", "hand", "pinky_2"):
-    vertices = np.unique(kit.mesh.faces[kit.palmar_faces(kit.rig.bone_index(b))])
-    a = SurfacePoints.from_vertices(hand_set.mesh, vertices)
-    m = SurfacePoints.from_vertices(mould_set.mesh, vertices)
-    patch = lambda mesh, points: ContactPatch(mesh, points, farthest_pair_axis(mesh, points))
-    hand_set = hand_set.add(b, patch(hand_set.mesh, a)).pair(b, b)
-    mould_set = mould_set.add(b, patch(mould_set.mesh, m)).pair(b, b)
-store.save(hand, hand_set); store.save(mould, mould_set)
+pair_on_mould(hand, mould, kit)
 """
+)
 
 
 def test_solve_operator_recovers_a_pose_and_keys_it(tmp_path):

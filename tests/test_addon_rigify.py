@@ -7,6 +7,7 @@ import importlib.util
 import pytest
 
 from .blender import run_blender
+from .test_addon_pose import PAIRED_ON_MOULD
 
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("bpy") is None, reason="needs bpy (the dev extra)")
 
@@ -77,7 +78,8 @@ def rigify_blend(tmp_path_factory):
 
 
 def run(script: str, path, tmp_path) -> dict:
-    return run_blender(script, tmp_path, setup=f"PATH = {str(path)!r}\n" + SETUP, timeout=1200)
+    setup = f"PATH = {str(path)!r}\n" + SETUP + PAIRED_ON_MOULD
+    return run_blender(script, tmp_path, setup=setup, timeout=1200)
 
 
 def test_the_solver_deforms_the_rigify_hand_as_blender_does(rigify_blend, tmp_path):
@@ -182,15 +184,7 @@ def test_after_a_large_move_of_the_ik_arm_the_skin_shown_is_the_skin_solved(rigi
         mould = assets.mesh_object("Mould", TriMesh(world_vertices(hand), faces[:, ::-1]), scene.collection)
         bridge.apply_pose(posed, posed.rig.rest)
         scene.contact_edit.hand, scene.contact_edit.target = hand, mould
-        hand_set, mould_set = store.load(hand), store.load(mould)
-        for b in ("index_3", "thumb_3", "hand", "pinky_2"):
-            vertices = np.unique(kit.mesh.faces[kit.palmar_faces(kit.rig.bone_index(b))])
-            a = SurfacePoints.from_vertices(hand_set.mesh, vertices)
-            m = SurfacePoints.from_vertices(mould_set.mesh, vertices)
-            patch = lambda mesh, points: ContactPatch(mesh, points, farthest_pair_axis(mesh, points))
-            hand_set = hand_set.add(b, patch(hand_set.mesh, a)).pair(b, b)
-            mould_set = mould_set.add(b, patch(mould_set.mesh, m)).pair(b, b)
-        store.save(hand, hand_set); store.save(mould, mould_set)
+        pair_on_mould(hand, mould, kit)
         bpy.ops.contact_edit.solve(stage="ALL", start="FRESH")
         problem = posing.problem(scene)
         shown = bridge.deviation(problem.posed, problem.theta0)
