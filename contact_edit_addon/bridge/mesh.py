@@ -89,7 +89,7 @@ def shaped_vertices(obj: bpy.types.Object) -> np.ndarray:
     keys = obj.data.shape_keys
     if keys is None or not any(k.value != 0 and not k.mute for k in keys.key_blocks[1:]):
         return mesh_arrays(obj.data)[0]
-    armatures = [i for i, m in enumerate(obj.modifiers) if m.type == "ARMATURE" and m.show_viewport]
+    armatures = _armature_indices(obj)
     with _hidden(obj.modifiers[armatures[0] :] if armatures else []):
         vertices = _evaluated_vertices(obj)
     if vertices is None:
@@ -120,8 +120,13 @@ def _hidden(modifiers):
 
 def after_armature(obj: bpy.types.Object) -> list[bpy.types.Modifier]:
     """The modifiers shown after the object's last shown Armature modifier (none without one)."""
-    armatures = [i for i, m in enumerate(obj.modifiers) if m.type == "ARMATURE" and m.show_viewport]
+    armatures = _armature_indices(obj)
     return [m for m in obj.modifiers[armatures[-1] + 1 :] if m.show_viewport] if armatures else []
+
+
+def _armature_indices(obj: bpy.types.Object) -> list[int]:
+    """Stack positions of the object's Armature modifiers shown in the viewport."""
+    return [i for i, m in enumerate(obj.modifiers) if m.type == "ARMATURE" and m.show_viewport]
 
 
 def _evaluated_vertices(obj: bpy.types.Object) -> np.ndarray | None:
