@@ -535,8 +535,9 @@ class ContactIK:
         with respect to the DOFs ``dofs`` (n,) (default all), the energy ``Σ r²`` and its terms.
 
         The rows are the contacts' offsets ``√λd (p - t) / u``, the normals' ``√(λn / 2) (n + m)``, the
-        markers', the priors' and, with ``solids``, a row per vertex for the table and the object
-        (``√λ max(0, -sdf) / u``; zero outside). Without ``solids`` the energy and terms leave those out.
+        markers', the priors' and, with ``solids``, a row per vertex inside the table or the object
+        (``√λ depth / u``; a vertex outside adds nothing, so it has no row). Without ``solids`` the energy
+        and terms leave those out.
         """
         if self.norm != "squared":
             raise SolverError("residuals need the squared norm (norm='squared')")
@@ -570,13 +571,13 @@ class ContactIK:
         for name, weight, evaluate in self._solids if solids else ():
             rows = skin.extra_rows
             sd, gradient = evaluate(V[rows])
-            depth = np.maximum(-sd, 0.0) / u
+            inside = np.flatnonzero(~(sd >= 0))  # a NaN distance too: the energy must say so
+            depth = -sd[inside] / u
             terms[name] = weight * float(np.sum(depth**2))
-            J = np.zeros((rows.size, index.size))
-            inside = np.flatnonzero(depth > 0)
+            J = np.zeros((0, index.size))
             if inside.size:
                 Jv = skin.vertices.jacobian(kin, rows[inside])[:, :, index]
-                J[inside] = -np.sqrt(weight) / u * np.einsum("vi,vid->vd", gradient[inside], Jv)
+                J = -np.sqrt(weight) / u * np.einsum("vi,vid->vd", gradient[inside], Jv)
             rows_r.append(np.sqrt(weight) * depth)
             rows_J.append(J)
         dp = np.where(self._prior_mask, t - self.prior, 0.0)
