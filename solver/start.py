@@ -15,11 +15,15 @@ module finds the start instead, in three steps repeated a few times:
    skin kept out of the object (the finger pads would otherwise catch on it on their way).
 3. Again: the root fits the fingers as they now curl, and the fingers the root as it now stands.
 
-It starts once from the fingers as given and once from the open hand (when they differ), and keeps the
-start with the lower energy, or the hand where it stands with only its fingers solved (step 2 alone), if
-that is lower still: a hand may already stand where its grasp is, with only its fingers to wrap (the
-Example's hand beside its mug), and a root fit of the open fingers' pads would lay it through the
-object. The solve then goes on from the start kept with every term.
+It starts once from the fingers as given, once from the open hand (when they differ) and once from that
+hand with its fingers curled (every joint that moves the pads along their normals turned by
+:data:`CURL`): laid onto contacts around an object, flat pads make a chord through it, and a finger
+solved from there without the solids threads the object's wall, where the local solve cannot get it
+out; curled pads make an arc and the root fits outside. It keeps the start with the lowest energy, or
+the hand where it stands with only its fingers solved (step 2 alone), if that is lower still: a hand
+may already stand where its grasp is, with only its fingers to wrap (the Example's hand beside its
+mug), and a root fit of the open fingers' pads would lay it through the object. The solve then goes on
+from the start kept with every term.
 """
 
 from __future__ import annotations
@@ -36,6 +40,11 @@ ROUNDS = 2
 FINGER_EVALUATIONS = 10
 #: How far along the normals the second point of each contact lies, as a fraction of the hand's length.
 NORMAL_OFFSET = 0.05
+#: How far the curled start turns each joint that curls the pads (radians; at most to the joint's limit).
+CURL = np.radians(60.0)
+#: A joint curls the pads when it moves them along their normals: by at least this fraction of how far it
+#: moves them at all (a finger's flexion, on any rig; its spread and twist move them sideways).
+CURL_ALIGNMENT = 0.5
 
 #: ``(θ (d,), DOFs (n,), evaluations) -> θ``: a solve of those DOFs without the solids' terms.
 Descend = Callable[[np.ndarray, np.ndarray, int], np.ndarray]
@@ -63,6 +72,9 @@ def grasp_start(ik, theta: np.ndarray, index: np.ndarray, descend: Descend, judg
     opened[fingers] = rig.rest[fingers]
     if not np.array_equal(opened, theta):
         starts.append(rig.clip(opened))
+    curled = _curled(ik, starts[-1], fingers, weights)
+    if curled is not None:
+        starts.append(curled)
     candidates = []
     for t in starts:
         for _ in range(ROUNDS):
@@ -75,6 +87,23 @@ def grasp_start(ik, theta: np.ndarray, index: np.ndarray, descend: Descend, judg
         candidates.append(descend(theta, fingers, ROUNDS * FINGER_EVALUATIONS))  # the hand where it stands
     energies = [judge(t) for t in candidates]
     return candidates[int(np.argmin(energies))]
+
+
+def _curled(ik, theta: np.ndarray, fingers: np.ndarray, weights: np.ndarray) -> np.ndarray | None:
+    """θ with every finger DOF that moves the contacts along their normals (towards what they touch) turned
+    by :data:`CURL` that way, as far as its limits allow (each patch weighing alike, by ``weights``); None
+    when no DOF does."""
+    rig = ik.hand.rig
+    _, n, dp, _ = ik.hand.point_jacobian(theta, ik.hand_points)
+    J = dp[:, :, fingers] * weights[:, None, None]
+    along = np.einsum("kij,ki->j", J, n)
+    moved = np.linalg.norm(J, axis=1).sum(axis=0)
+    curls = rig.is_rotation[fingers] & (np.abs(along) >= CURL_ALIGNMENT * moved) & (moved > 0)
+    if not np.any(curls):
+        return None
+    out = theta.copy()
+    out[fingers[curls]] += CURL * np.sign(along[curls])
+    return rig.clip(out)
 
 
 def _root_fit(ik, theta: np.ndarray, root: np.ndarray, weights: np.ndarray) -> np.ndarray:
