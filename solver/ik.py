@@ -100,12 +100,16 @@ EDIT_REACH = 0.5
 #: A patch touches when its contacts' median distance to their targets is at most this, in units u (2 mm
 #: on a life-size hand); :attr:`SolveResult.unreached` names the patches that do not.
 TOUCH_DISTANCE = 0.2
+#: Pressing (:meth:`ContactIK._pressed`) goes on for the patches farther than this from their targets, in
+#: units u (1.5 mm on a life-size hand): a patch that barely touches by :data:`TOUCH_DISTANCE` is
+#: pressed on until it sits on them.
+PRESS_DISTANCE = 0.15
 #: A patch a solve leaves short of touching weighs this many times more in the next round of pressing
 #: (:meth:`ContactIK._pressed`), of at most :data:`PRESS_ROUNDS`.
 PRESS_FACTOR = 10.0
 PRESS_ROUNDS = 3
 #: Evaluations of each round of pressing: it starts near its end.
-PRESS_EVALUATIONS = 100
+PRESS_EVALUATIONS = 50
 #: Evaluations of each solve that looks for the patch out of reach (:meth:`ContactIK._out_of_reach`),
 #: pressing included: it starts from the solved pose, and must not take longer than the solve.
 EXPLAIN_EVALUATIONS = 2 * PRESS_EVALUATIONS
@@ -667,17 +671,19 @@ class ContactIK:
 
         With a strong prior (Contact Edit's λp) and patches placed by eye, a patch's best compromise
         may hover a few millimetres off the object: a curled finger's prior outweighs its last few
-        millimetres. A person asked for the patch to touch, so its contacts' weights grow by
-        :data:`PRESS_FACTOR` and the solve goes on from its pose, :data:`PRESS_ROUNDS` times at most,
-        each of at most :data:`PRESS_EVALUATIONS`, and kept only if it leaves fewer patches unreached,
-        or as many nearer touching in all (:meth:`_standing`): a patch out of reach must not drag the
-        others off, but a patch the last round let go of is pressed in the next."""
+        millimetres. A person asked for the patch to touch, so the contacts' weights of every patch
+        farther than :data:`PRESS_DISTANCE` from its targets grow by :data:`PRESS_FACTOR` and the solve
+        goes on from its pose, :data:`PRESS_ROUNDS` times at most, each of at most
+        :data:`PRESS_EVALUATIONS`, and kept only if it leaves fewer patches unreached, or as many nearer
+        touching in all (:meth:`_standing`): a patch out of reach must not drag the others off, but a
+        patch the last round let go of is pressed in the next."""
         factors = self.contact_weights
         for _ in range(PRESS_ROUNDS):
             budget = min(int(max_evaluations) - result.iterations, PRESS_EVALUATIONS)
-            if not result.unreached or budget <= 0 or result.status in ("cancelled", "no free DOFs"):
+            pressed = self._short(result)
+            if not pressed or budget <= 0 or result.status in ("cancelled", "no free DOFs"):
                 break
-            short = np.isin(self.patch_of, [self.patch_names.index(name) for name in result.unreached])
+            short = np.isin(self.patch_of, [self.patch_names.index(name) for name in pressed])
             factors = factors * np.where(short, PRESS_FACTOR, 1.0)
             told = None if progress is None else _counting_on(progress, result.iterations)
             more = self._subset(np.ones(len(factors), bool), factors)._solve(
@@ -695,10 +701,14 @@ class ContactIK:
             )  # fmt: skip
         return result
 
+    def _short(self, result: SolveResult) -> list[str]:
+        """The patches of ``result`` that pressing goes on with: farther than :data:`PRESS_DISTANCE`."""
+        return [name for name, gap in result.gaps.items() if gap > PRESS_DISTANCE * self.unit]
+
     def _standing(self, result: SolveResult) -> tuple[int, float]:
         """How far a result is from every patch touching, to compare two (lower is nearer): how many
-        patches are unreached, then the sum of their gaps beyond :data:`TOUCH_DISTANCE`."""
-        short = sum(max(gap - TOUCH_DISTANCE * self.unit, 0.0) for gap in result.gaps.values())
+        patches are unreached, then the sum of their gaps beyond :data:`PRESS_DISTANCE`."""
+        short = sum(max(gap - PRESS_DISTANCE * self.unit, 0.0) for gap in result.gaps.values())
         return len(result.unreached), float(short)
 
     def _solve(self, theta0, free, progress, max_evaluations, ftol_rel, start) -> SolveResult:
