@@ -104,6 +104,9 @@ TOUCH_DISTANCE = 0.2
 #: units u (1.5 mm on a life-size hand): a patch that barely touches by :data:`TOUCH_DISTANCE` is
 #: pressed on until it sits on them.
 PRESS_DISTANCE = 0.15
+#: Pressing is not kept when it pushes the skin into the table or the object by more than one vertex this
+#: many units u deeper than before pressing (0.2 mm on a life-size hand).
+PRESS_DEPTH = 0.05
 #: A patch a solve leaves short of touching weighs this many times more in the next round of pressing
 #: (:meth:`ContactIK._pressed`), of at most :data:`PRESS_ROUNDS`.
 PRESS_FACTOR = 10.0
@@ -675,9 +678,10 @@ class ContactIK:
         farther than :data:`PRESS_DISTANCE` from its targets grow by :data:`PRESS_FACTOR` and the solve
         goes on from its pose, :data:`PRESS_ROUNDS` times at most, each of at most
         :data:`PRESS_EVALUATIONS`, and kept only if it leaves fewer patches unreached, or as many nearer
-        touching in all (:meth:`_standing`): a patch out of reach must not drag the others off, but a
-        patch the last round let go of is pressed in the next."""
-        factors = self.contact_weights
+        touching in all (:meth:`_standing`), without pushing the skin deeper in (:meth:`_deeper`): a
+        patch out of reach must not drag the others off, but a patch the last round let go of is
+        pressed in the next."""
+        factors, unpressed = self.contact_weights, result.terms
         for _ in range(PRESS_ROUNDS):
             budget = min(int(max_evaluations) - result.iterations, PRESS_EVALUATIONS)
             pressed = self._short(result)
@@ -690,16 +694,23 @@ class ContactIK:
                 result.theta, free, told, budget, ftol_rel, "local"
             )
             count = result.iterations + more.iterations
-            if self._standing(more) >= self._standing(result):
+            energy, terms = self.energy(more.theta)
+            if self._standing(more) >= self._standing(result) or self._deeper(terms, unpressed):
                 status = "cancelled" if more.status == "cancelled" else result.status
                 return replace(result, iterations=count, status=status)
-            energy, terms = self.energy(more.theta)
             status = more.status if more.status in ("cancelled", "stopped") else result.status
             result = replace(
                 more, energy=energy, terms=terms, iterations=count, status=status,
                 start_energy=result.start_energy, start=result.start,
             )  # fmt: skip
         return result
+
+    def _deeper(self, terms: dict, before: dict) -> bool:
+        """Whether the terms ``terms`` put the skin deeper into the table or the object than ``before``
+        do, by more than one vertex :data:`PRESS_DEPTH` deep: a press must not buy its touch by pushing
+        the skin in."""
+        slack = max((weight for _, weight, _ in self._solids), default=0.0) * PRESS_DEPTH**2
+        return sum(terms[name] - before[name] for name, _, _ in self._solids) > slack
 
     def _short(self, result: SolveResult) -> list[str]:
         """The patches of ``result`` that pressing goes on with: farther than :data:`PRESS_DISTANCE`."""

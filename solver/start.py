@@ -90,9 +90,13 @@ def grasp_start(ik, theta: np.ndarray, index: np.ndarray, descend: Descend, judg
 
 
 def _curled(ik, theta: np.ndarray, fingers: np.ndarray, weights: np.ndarray) -> np.ndarray | None:
-    """θ with every finger DOF that moves the contacts along their normals (towards what they touch) turned
-    by :data:`CURL` that way, as far as its limits allow (each patch weighing alike, by ``weights``); None
-    when no DOF does."""
+    """θ with every DOF but the root's that carries the contacts along their normals (towards what they
+    touch) turned by :data:`CURL` that way, as far as its limits allow; None when none does.
+
+    On any rig these are the flexion of the fingers and of the wrist (which bends the forearm away from
+    what the hand holds), and a joint beyond a pad turns so that its blended skin follows the pad; a
+    finger's spread and twist carry the contacts sideways and stay. Each patch weighs alike
+    (``weights``)."""
     rig = ik.hand.rig
     _, n, dp, _ = ik.hand.point_jacobian(theta, ik.hand_points)
     J = dp[:, :, fingers] * weights[:, None, None]

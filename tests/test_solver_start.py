@@ -8,8 +8,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from geodesics import TriMesh
-from solver import ContactIK, MeshSDF, SolverError, hands, objects
-from solver.layouts import BINS, judge, known_grip, make_layout
+from solver import ContactIK, MeshSDF, SolverError, hands, objects, start
+from solver.ik import PRESS_DEPTH
+from solver.layouts import BINS, OBJECTS, judge, known_grip, make_layout
 from solver.least_squares import compressed
 from solver.sdf import NarrowBand
 
@@ -199,6 +200,56 @@ def test_a_pad_left_hovering_is_pressed_onto_its_patch():
     assert pressed.energy == pytest.approx(ik.energy(pressed.theta)[0], rel=1e-12)
     assert pressed.energy > plain.energy  # touching costs prior: Eq. 2's own minimum hovers
     assert pressed.iterations > plain.iterations
+
+
+def _solve(layout, **kwargs):
+    ik = ContactIK(layout.hand, layout.points, layout.positions, layout.normals, keep_out=layout.sdf,
+                   patches=layout.patches)  # fmt: skip
+    return ik, ik.solve(**kwargs)
+
+
+@pytest.mark.parametrize(("kind", "name"), [("human", "mug"), ("witch", "mug"), ("alien", "box")])
+def test_the_curled_start_curls_the_fingers_that_carry_pads(kind, name):
+    """Found from the contacts alone (the DOFs that carry them along their normals), the curled start's
+    joints are the procedural hands' own flexion DOFs (:meth:`Hand.flexion_dofs`) and the wrist's: every
+    knuckle of a chain that carries a pad turned to close, no spread or twist."""
+    hand = hands.make_hand(kind)
+    layout = make_layout(known_grip(hand, name), bin=BINS[0], seed=0)
+    ik = ContactIK(hand, layout.points, layout.positions, layout.normals, patches=layout.patches)
+    rig = hand.rig
+    fingers = np.flatnonzero((rig.dof_bone != 0) & ~rig.locked)
+    curled = start._curled(ik, rig.rest, fingers, 1.0 / np.bincount(ik.patch_of)[ik.patch_of])
+    moved = np.flatnonzero(curled != rig.rest)
+    flexion = {int(i) for c in hand.chains for i in hand.flexion_dofs(c)}
+    assert set(moved) <= flexion | {rig.rotation_dof(rig.bone_index("hand"), 0)}
+    carrying = [c for c, bones in hand.chains.items() if any(rig.names[b] in layout.pads for b in bones)]
+    knuckles = [int(hand.flexion_dofs(c)[0]) for c in carrying]
+    assert np.all(curled[knuckles] > rig.rest[knuckles])
+
+
+def test_fingers_that_wrap_a_mug_start_curled_not_through_its_wall():
+    """The witch hand's long fingers around a mug turned 65° and carried 21 cm: the open hand laid onto
+    the pads lies through the mug, and a finger solved from there without the solids threads its wall
+    (the solve ended with the thumb pad 40 mm off and the skin 3 mm deep); from the curled start every
+    pad touches."""
+    grip = known_grip(hands.make_hand("witch"), "mug")
+    layout = make_layout(grip, bin=BINS[1], seed=[0, list(OBJECTS).index("mug"), 1, 0])
+    _, result = _solve(layout)
+    assert result.start == "global" and result.unreached == ()
+    assert judge(layout.hand, result.theta, layout).success
+
+
+def test_pressing_does_not_push_the_skin_in():
+    """Two alien fingertip pads placed by eye on a box, where they cannot lie flat on their targets:
+    pressed on the last millimetres, they pushed the skin 1.4 mm into the box. A press is kept only
+    while the skin goes no deeper than before pressing (by one vertex :data:`PRESS_DEPTH` deep)."""
+    grip = known_grip(hands.make_hand("alien"), "box")
+    layout = make_layout(grip, bin=BINS[0], seed=[0, list(OBJECTS).index("box"), 0, 2])
+    ik, plain = _solve(layout, press=False)
+    pressed = ik.solve()
+    assert pressed.iterations > plain.iterations  # it pressed
+    assert pressed.terms["penetration"] <= plain.terms["penetration"] + ik.weights.o * PRESS_DEPTH**2
+    assert -layout.sdf(layout.hand.posed_vertices(pressed.theta)).min() < 0.001
 
 
 def test_contact_weights_scale_their_contacts_terms_and_are_checked(far):
