@@ -104,9 +104,9 @@ TOUCH_DISTANCE = 0.2
 #: units u (1.5 mm on a life-size hand): a patch that barely touches by :data:`TOUCH_DISTANCE` is
 #: pressed on until it sits on them.
 PRESS_DISTANCE = 0.15
-#: Pressing is not kept when it pushes the skin into the table or the object by more than one vertex this
-#: many units u deeper than before pressing (0.2 mm on a life-size hand).
-PRESS_DEPTH = 0.05
+#: Pressing is not kept when it pushes the skin deeper into the table or the object than this many
+#: units u (1 mm on a life-size hand), or than it was before pressing if that was deeper.
+PRESS_DEPTH = 0.1
 #: A patch a solve leaves short of touching weighs this many times more in the next round of pressing
 #: (:meth:`ContactIK._pressed`), of at most :data:`PRESS_ROUNDS`.
 PRESS_FACTOR = 10.0
@@ -678,15 +678,17 @@ class ContactIK:
         farther than :data:`PRESS_DISTANCE` from its targets grow by :data:`PRESS_FACTOR` and the solve
         goes on from its pose, :data:`PRESS_ROUNDS` times at most, each of at most
         :data:`PRESS_EVALUATIONS`, and kept only if it leaves fewer patches unreached, or as many nearer
-        touching in all (:meth:`_standing`), without pushing the skin deeper in (:meth:`_deeper`): a
+        touching in all (:meth:`_standing`), without pushing the skin in (:data:`PRESS_DEPTH`): a
         patch out of reach must not drag the others off, but a patch the last round let go of is
         pressed in the next."""
-        factors, unpressed = self.contact_weights, result.terms
+        factors, allowed = self.contact_weights, None
         for _ in range(PRESS_ROUNDS):
             budget = min(int(max_evaluations) - result.iterations, PRESS_EVALUATIONS)
             pressed = self._short(result)
             if not pressed or budget <= 0 or result.status in ("cancelled", "no free DOFs"):
                 break
+            if allowed is None:
+                allowed = max(self._depth(result.theta), PRESS_DEPTH * self.unit)
             short = np.isin(self.patch_of, [self.patch_names.index(name) for name in pressed])
             factors = factors * np.where(short, PRESS_FACTOR, 1.0)
             told = None if progress is None else _counting_on(progress, result.iterations)
@@ -694,10 +696,10 @@ class ContactIK:
                 result.theta, free, told, budget, ftol_rel, "local"
             )
             count = result.iterations + more.iterations
-            energy, terms = self.energy(more.theta)
-            if self._standing(more) >= self._standing(result) or self._deeper(terms, unpressed):
+            if self._standing(more) >= self._standing(result) or self._depth(more.theta) > allowed:
                 status = "cancelled" if more.status == "cancelled" else result.status
                 return replace(result, iterations=count, status=status)
+            energy, terms = self.energy(more.theta)
             status = more.status if more.status in ("cancelled", "stopped") else result.status
             result = replace(
                 more, energy=energy, terms=terms, iterations=count, status=status,
@@ -705,12 +707,13 @@ class ContactIK:
             )  # fmt: skip
         return result
 
-    def _deeper(self, terms: dict, before: dict) -> bool:
-        """Whether the terms ``terms`` put the skin deeper into the table or the object than ``before``
-        do, by more than one vertex :data:`PRESS_DEPTH` deep: a press must not buy its touch by pushing
-        the skin in."""
-        slack = max((weight for _, weight, _ in self._solids), default=0.0) * PRESS_DEPTH**2
-        return sum(terms[name] - before[name] for name, _, _ in self._solids) > slack
+    def _depth(self, theta) -> float:
+        """How deep the skin the solve moves lies inside the table or the object at θ (d,) (0 outside)."""
+        if not self._solids:
+            return 0.0
+        V = self._skin.vertices.positions(self.hand.rig.kinematics(theta, derivatives=False))
+        inside = [evaluate(V[self._skin.extra_rows])[0].min() for _, _, evaluate in self._solids]
+        return max(0.0, -float(min(inside)))
 
     def _short(self, result: SolveResult) -> list[str]:
         """The patches of ``result`` that pressing goes on with: farther than :data:`PRESS_DISTANCE`."""

@@ -242,14 +242,14 @@ def test_fingers_that_wrap_a_mug_start_curled_not_through_its_wall():
 def test_pressing_does_not_push_the_skin_in():
     """Two alien fingertip pads placed by eye on a box, where they cannot lie flat on their targets:
     pressed on the last millimetres, they pushed the skin 1.4 mm into the box. A press is kept only
-    while the skin goes no deeper than before pressing (by one vertex :data:`PRESS_DEPTH` deep)."""
+    while the skin stays within :data:`PRESS_DEPTH` of the surface (or no deeper than before)."""
     grip = known_grip(hands.make_hand("alien"), "box")
     layout = make_layout(grip, bin=BINS[0], seed=[0, list(OBJECTS).index("box"), 0, 2])
     ik, plain = _solve(layout, press=False)
     pressed = ik.solve()
+    depth = [-layout.sdf(layout.hand.posed_vertices(r.theta)).min() for r in (plain, pressed)]
     assert pressed.iterations > plain.iterations  # it pressed
-    assert pressed.terms["penetration"] <= plain.terms["penetration"] + ik.weights.o * PRESS_DEPTH**2
-    assert -layout.sdf(layout.hand.posed_vertices(pressed.theta)).min() < 0.001
+    assert depth[0] < PRESS_DEPTH * ik.unit and depth[1] <= PRESS_DEPTH * ik.unit
 
 
 def test_contact_weights_scale_their_contacts_terms_and_are_checked(far):
