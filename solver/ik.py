@@ -708,12 +708,13 @@ class ContactIK:
         return result
 
     def _depth(self, theta) -> float:
-        """How deep the skin the solve moves lies inside the table or the object at θ (d,) (0 outside)."""
-        if not self._solids:
+        """How deep the skin the solve moves lies inside the table or the object at θ (d,) (0 outside;
+        exact, where the keep-out term's narrow band sees no deeper than its band)."""
+        solids = [solid for solid in (self.obstacle, self.keep_out) if solid is not None]
+        if not solids:
             return 0.0
         V = self._skin.vertices.positions(self.hand.rig.kinematics(theta, derivatives=False))
-        inside = [evaluate(V[self._skin.extra_rows])[0].min() for _, _, evaluate in self._solids]
-        return max(0.0, -float(min(inside)))
+        return max(0.0, -min(float(solid.evaluate(V[self._skin.extra_rows])[0].min()) for solid in solids))
 
     def _short(self, result: SolveResult) -> list[str]:
         """The patches of ``result`` that pressing goes on with: farther than :data:`PRESS_DISTANCE`."""

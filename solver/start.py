@@ -16,14 +16,14 @@ module finds the start instead, in three steps repeated a few times:
 3. Again: the root fits the fingers as they now curl, and the fingers the root as it now stands.
 
 It starts once from the fingers as given, once from the open hand (when they differ) and once from that
-hand with its fingers curled (every joint that moves the pads along their normals turned by
-:data:`CURL`): laid onto contacts around an object, flat pads make a chord through it, and a finger
-solved from there without the solids threads the object's wall, where the local solve cannot get it
-out; curled pads make an arc and the root fits outside. It keeps the start with the lowest energy, or
-the hand where it stands with only its fingers solved (step 2 alone), if that is lower still: a hand
-may already stand where its grasp is, with only its fingers to wrap (the Example's hand beside its
-mug), and a root fit of the open fingers' pads would lay it through the object. The solve then goes on
-from the start kept with every term.
+hand with its fingers curled (every joint but the root's that moves the pads along their normals, the
+wrist's too, turned by :data:`CURL`): laid onto contacts around an object, flat pads make a chord
+through it, and a finger solved from there without the solids threads the object's wall, where the
+local solve cannot get it out; curled pads make an arc and the root fits outside. It keeps the start
+with the lowest energy, or the hand where it stands with only its fingers solved (step 2 alone), if
+that is lower still: a hand may already stand where its grasp is, with only its fingers to wrap (the
+Example's hand beside its mug), and a root fit of the open fingers' pads would lay it through the
+object. The solve then goes on from the start kept with every term.
 """
 
 from __future__ import annotations
