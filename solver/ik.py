@@ -105,8 +105,9 @@ TOUCH_DISTANCE = 0.2
 #: pressed on until it sits on them.
 PRESS_DISTANCE = 0.15
 #: Pressing is not kept when it pushes the skin deeper into the table or the object than this many
-#: units u (1 mm on a life-size hand), or than it was before pressing if that was deeper.
-PRESS_DEPTH = 0.1
+#: units u, or than it was before pressing if that was deeper: under 1 mm on hands up to 31 cm across
+#: (0.95 mm on the procedural human hand, whose bounding box is 29.6 cm across).
+PRESS_DEPTH = 0.08
 #: A patch a solve leaves short of touching weighs this many times more in the next round of pressing
 #: (:meth:`ContactIK._pressed`), of at most :data:`PRESS_ROUNDS`.
 PRESS_FACTOR = 10.0
@@ -124,6 +125,13 @@ STOPPED_SHORT = (
     RuntimeError,
     *([nlopt.runtime_error] if hasattr(nlopt, "runtime_error") else []),
 )
+#: A solve from the grasp its contacts imply (``start="global"``), when that start moved the hand, goes on
+#: without the table and the object for at most this many evaluations, then with them: their stiff walls
+#: make the trust region creep along the object's surface, hundreds of evaluations for a grasp it reaches
+#: in tens without them, and from that grasp the solids only push the skin out. A start that leaves the
+#: hand where it stands (only its fingers solved) keeps the solids: its fingers wrap along the walls, and
+#: pushed out from inside the skin settles deeper (0.14 mm against 0.04 mm in the README's demo).
+UNSOLID_EVALUATIONS = 100
 #: Default stopping rule: relative change of the energy, and a cap on objective evaluations.
 FTOL_REL = 1e-9
 #: The trust region's: its Gauss-Newton steps settle in few evaluations, and a tighter rule only buys
@@ -641,7 +649,8 @@ class ContactIK:
             :data:`TRUST_REGION_FTOL` for the trust region, :data:`FTOL_REL` for NLopt's algorithms).
         start : str
             One of :data:`STARTS`: from θ0 (``"local"``), from the grasp the contacts imply
-            (``"global"``, :mod:`solver.start`; with the :data:`TRUST_REGION` algorithm and a free root),
+            (``"global"``, :mod:`solver.start`, then :data:`UNSOLID_EVALUATIONS`; with the
+            :data:`TRUST_REGION` algorithm and a free root),
             or the second when the hand is far from its contacts (``"auto"``).
         press : bool, optional
             Press the patches the solve leaves short of touching onto their targets (:meth:`_pressed`;
@@ -746,11 +755,16 @@ class ContactIK:
 
         try:
             if mode == "global":
+                given = theta
                 theta = grasp_start(
                     self, theta, index,
                     lambda t, dofs, count: self._descend(t, dofs, count, ftol_rel, tally, solids=False),
                     judge,
                 )  # fmt: skip
+                root = rig.dof_bone == 0
+                if self._solids and not np.array_equal(theta[root], given[root]):
+                    budget = min(max(int(max_evaluations) - tally.count, 1), UNSOLID_EVALUATIONS)
+                    theta = self._descend(theta, index, budget, ftol_rel, tally, solids=False)
             budget = max(int(max_evaluations) - tally.count, 1)
             status = self._descend(theta, index, budget, ftol_rel, tally, status=True)
         except _Cancelled:
