@@ -125,12 +125,13 @@ STOPPED_SHORT = (
     RuntimeError,
     *([nlopt.runtime_error] if hasattr(nlopt, "runtime_error") else []),
 )
-#: A solve from the grasp its contacts imply (``start="global"``) first goes on without the table and the
-#: object for at most this many evaluations, and goes on with them from there if that is better by the
-#: whole energy (else from the start): their stiff walls make the trust region creep along the object's
-#: surface, hundreds of evaluations for a grasp it reaches in tens without them, and from that grasp the
-#: solids only push the skin out; but a grasp deep in the object (a patch out of reach pulling the skin
-#: in) is pushed out more slowly still.
+#: A solve from the grasp its contacts imply (``start="global"``), when that start moved the hand, first
+#: goes on without the table and the object for at most this many evaluations, and goes on with them from
+#: there if that is better by the whole energy (else from the start): their stiff walls make the trust
+#: region creep along the object's surface, hundreds of evaluations for a grasp it reaches in tens without
+#: them, and from that grasp the solids only push the skin out; but a grasp deep in the object (a patch
+#: out of reach pulling the skin in) is pushed out more slowly still. A hand left where it stands (only
+#: its fingers solved) has no way to travel, and its fingers wrap along the walls.
 UNSOLID_EVALUATIONS = 100
 #: Default stopping rule: relative change of the energy, and a cap on objective evaluations.
 FTOL_REL = 1e-9
@@ -755,12 +756,14 @@ class ContactIK:
 
         try:
             if mode == "global":
+                given = theta
                 theta = grasp_start(
                     self, theta, index,
                     lambda t, dofs, count: self._descend(t, dofs, count, ftol_rel, tally, solids=False),
                     judge,
                 )  # fmt: skip
-                if self._solids:
+                root = rig.dof_bone == 0
+                if self._solids and not np.array_equal(theta[root], given[root]):
                     budget = min(max(int(max_evaluations) - tally.count, 1), UNSOLID_EVALUATIONS)
                     grasp = self._descend(theta, index, budget, ftol_rel, tally, solids=False)
                     theta = grasp if judge(grasp) < judge(theta) else theta

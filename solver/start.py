@@ -23,8 +23,8 @@ local solve cannot get it out; curled pads make an arc and the root fits outside
 with the lowest energy, or the hand where it stands with only its fingers solved (step 2 alone), if
 that is lower still: a hand may already stand where its grasp is, with only its fingers to wrap (the
 Example's hand beside its mug), and a root fit of the open fingers' pads would lay it through the
-object. The solve then goes on from the start kept with every term (after a while without the solids, if
-that is better: :data:`solver.ik.UNSOLID_EVALUATIONS`).
+object. The solve then goes on from the start kept with every term (after a root fit, from a while
+without the solids if that is better: :data:`solver.ik.UNSOLID_EVALUATIONS`).
 """
 
 from __future__ import annotations
