@@ -125,14 +125,6 @@ STOPPED_SHORT = (
     RuntimeError,
     *([nlopt.runtime_error] if hasattr(nlopt, "runtime_error") else []),
 )
-#: A solve from the grasp its contacts imply (``start="global"``), when that start moved the hand, first
-#: goes on without the table and the object for at most this many evaluations, and goes on with them from
-#: there if that is better by the whole energy (else from the start): their stiff walls make the trust
-#: region creep along the object's surface, hundreds of evaluations for a grasp it reaches in tens without
-#: them, and from that grasp the solids only push the skin out; but a grasp deep in the object (a patch
-#: out of reach pulling the skin in) is pushed out more slowly still. A hand left where it stands (only
-#: its fingers solved) has no way to travel, and its fingers wrap along the walls.
-UNSOLID_EVALUATIONS = 100
 #: Default stopping rule: relative change of the energy, and a cap on objective evaluations.
 FTOL_REL = 1e-9
 #: The trust region's: its Gauss-Newton steps settle in few evaluations, and a tighter rule only buys
@@ -650,8 +642,7 @@ class ContactIK:
             :data:`TRUST_REGION_FTOL` for the trust region, :data:`FTOL_REL` for NLopt's algorithms).
         start : str
             One of :data:`STARTS`: from θ0 (``"local"``), from the grasp the contacts imply
-            (``"global"``, :mod:`solver.start`, then :data:`UNSOLID_EVALUATIONS`; with the
-            :data:`TRUST_REGION` algorithm and a free root),
+            (``"global"``, :mod:`solver.start`; with the :data:`TRUST_REGION` algorithm and a free root),
             or the second when the hand is far from its contacts (``"auto"``).
         press : bool, optional
             Press the patches the solve leaves short of touching onto their targets (:meth:`_pressed`;
@@ -756,17 +747,11 @@ class ContactIK:
 
         try:
             if mode == "global":
-                given = theta
                 theta = grasp_start(
                     self, theta, index,
                     lambda t, dofs, count: self._descend(t, dofs, count, ftol_rel, tally, solids=False),
                     judge,
                 )  # fmt: skip
-                root = rig.dof_bone == 0
-                if self._solids and not np.array_equal(theta[root], given[root]):
-                    budget = min(max(int(max_evaluations) - tally.count, 1), UNSOLID_EVALUATIONS)
-                    grasp = self._descend(theta, index, budget, ftol_rel, tally, solids=False)
-                    theta = grasp if judge(grasp) < judge(theta) else theta
             budget = max(int(max_evaluations) - tally.count, 1)
             status = self._descend(theta, index, budget, ftol_rel, tally, status=True)
         except _Cancelled:

@@ -4,7 +4,7 @@ Contact IK is a local method: from a hand far from its contacts (the wrist to mo
 turn by half a turn, the fingers to wrap an object) it ends in a minimum on the way, which is the paper's
 own users' first complaint (Contact Edit §7: "solutions to difficult optimization problems such as those
 which involved very large wrist movement"). Their answer was to move the object and solve again; this
-module finds the start instead, in three steps repeated a few times:
+module finds the start instead, in three steps repeated a few times, and a fourth:
 
 1. **The root.** The rigid motion that best lays the hand's contact points onto their targets and their
    normals against the object's (each point with a second one a little along its normal, paired with
@@ -14,6 +14,11 @@ module finds the start instead, in three steps repeated a few times:
 2. **The fingers.** With the root held, a short solve of the other DOFs towards the targets, without the
    skin kept out of the object (the finger pads would otherwise catch on it on their way).
 3. Again: the root fits the fingers as they now curl, and the fingers the root as it now stands.
+4. Last, the whole hand, root and fingers, solved from the start kept without the solids, for at most
+   :data:`UNSOLID_EVALUATIONS`, and kept instead if its energy is lower: the table's and the object's
+   stiff walls make the trust region creep along the object's surface, hundreds of evaluations for a
+   grasp it reaches in tens without them, and from that grasp the solids only push the skin out; but a
+   grasp deep in the object (a patch out of reach pulling the skin in) is pushed out more slowly still.
 
 It starts once from the fingers as given, once from the open hand (when they differ) and once from that
 hand with its fingers curled (every joint but the root's that moves the pads along their normals, the
@@ -23,8 +28,9 @@ local solve cannot get it out; curled pads make an arc and the root fits outside
 with the lowest energy, or the hand where it stands with only its fingers solved (step 2 alone), if
 that is lower still: a hand may already stand where its grasp is, with only its fingers to wrap (the
 Example's hand beside its mug), and a root fit of the open fingers' pads would lay it through the
-object. The solve then goes on from the start kept with every term (after a root fit, from a while
-without the solids if that is better: :data:`solver.ik.UNSOLID_EVALUATIONS`).
+object; step 4 follows only a root fit (the hand where it stands has no way to travel, and its fingers
+wrap along the walls) and only with solids to keep the skin out of. The solve then goes on from the
+start kept with every term.
 """
 
 from __future__ import annotations
@@ -46,6 +52,9 @@ CURL = np.radians(60.0)
 #: A joint curls the pads when it moves them along their normals: by at least this fraction of how far it
 #: moves them at all (a finger's flexion, on any rig; its spread and twist move them sideways).
 CURL_ALIGNMENT = 0.5
+
+#: Evaluations of the whole hand's solve without the solids from the start kept (step 4).
+UNSOLID_EVALUATIONS = 100
 
 #: ``(θ (d,), DOFs (n,), evaluations) -> θ``: a solve of those DOFs without the solids' terms.
 Descend = Callable[[np.ndarray, np.ndarray, int], np.ndarray]
@@ -87,7 +96,11 @@ def grasp_start(ik, theta: np.ndarray, index: np.ndarray, descend: Descend, judg
     if fingers.size:
         candidates.append(descend(theta, fingers, ROUNDS * FINGER_EVALUATIONS))  # the hand where it stands
     energies = [judge(t) for t in candidates]
-    return candidates[int(np.argmin(energies))]
+    best = int(np.argmin(energies))
+    if best == len(starts) or (ik.obstacle is None and ik.keep_out is None):
+        return candidates[best]  # the hand where it stands has no way to travel; or nothing to keep out of
+    grasp = descend(candidates[best], index, UNSOLID_EVALUATIONS)
+    return grasp if judge(grasp) < energies[best] else candidates[best]
 
 
 def _curled(ik, theta: np.ndarray, fingers: np.ndarray, weights: np.ndarray) -> np.ndarray | None:

@@ -242,7 +242,8 @@ def test_fingers_that_wrap_a_mug_start_curled_not_through_its_wall():
 def test_the_solids_join_the_solve_once_the_hand_reaches_its_grasp():
     """Five human pads around a mug turned 130°: with the skin kept out of the mug from the start, the
     trust region crept along the mug's wall and the solve took 628 evaluations; reaching the grasp
-    without the solids first (:data:`UNSOLID_EVALUATIONS`), then pushing the skin out, it takes 226."""
+    without the solids first (:data:`solver.start.UNSOLID_EVALUATIONS`), then pushing the skin out, it
+    takes 225."""
     grip = known_grip(hands.make_hand("human"), "mug")
     layout = make_layout(grip, bin=BINS[2], seed=[0, list(OBJECTS).index("mug"), 2, 0])
     _, result = _solve(layout)
