@@ -31,6 +31,8 @@ from .dofs import EulerDofs
 
 #: A location column of the root control shorter than this (times the hand's size) does not move it.
 MIN_LOCATION_EFFECT = 1e-9
+#: Poses whose skinning matrices a rig keeps (:meth:`ControlRig.kinematics`).
+RECENT_POSES = 8
 
 
 class ControlKinematics:
@@ -59,14 +61,16 @@ class ControlKinematics:
 
     def jacobian(self, weights: np.ndarray, rest: np.ndarray) -> np.ndarray:
         """(m, 3, d) derivatives of ``Σ_s weights[v, s] S_s [rest_v; 1]`` (weights (m, s) dense, rest (m, 3))
-        with respect to θ."""
-        n_deformers = len(self.skinning)
+        with respect to θ (only the deformers that move these points count: a finger's pads are moved by
+        a few of a hand's hundreds of B-Bone segments)."""
+        used = np.flatnonzero(np.any(weights != 0, axis=0))
+        n_deformers = len(used)
         full = np.zeros((n_deformers, 4, self.n_dofs, 3))  # (s, column, DOF, row)
-        j, s = np.nonzero(self.owners >= 0)
-        full[s, :, self.owners[j, s]] = self.tangents[j, s].transpose(0, 2, 1)
+        j, s = np.nonzero(self.owners[:, used] >= 0)
+        full[s, :, self.owners[j, used[s]]] = self.tangents[j, used[s]].transpose(0, 2, 1)
         # Σ_s w[v, s] dS_s/dθ [rest_v; 1]: one product of the weighted homogeneous points (m, 4 s)
         homogeneous = np.concatenate([rest, np.ones((len(rest), 1))], axis=1)
-        X = (weights[:, :, None] * homogeneous[:, None, :]).reshape(len(rest), 4 * n_deformers)
+        X = (weights[:, used, None] * homogeneous[:, None, :]).reshape(len(rest), 4 * n_deformers)
         return (
             (X @ full.reshape(4 * n_deformers, 3 * self.n_dofs))
             .reshape(len(rest), self.n_dofs, 3)
@@ -326,16 +330,33 @@ class ControlRig(EulerDofs):
         directions as it has DOFs.
         """
         t = self.check_theta(theta)
+        pose = t.tobytes()
         if not derivatives:
-            S = self._evaluate(t[None])[0]
-            return ControlKinematics(np.ascontiguousarray(S[:, :3].real), None)
+            skinning = self._recent.get(pose)
+            if skinning is None:
+                skinning = np.ascontiguousarray(self._evaluate(t[None])[0][:, :3].real)
+                self._remember(pose, skinning)
+            return ControlKinematics(skinning, None)
         key = None if dofs is None else tuple(np.asarray(dofs, dtype=np.int64).tolist())
         seeds, owners = self._seeding(key)
         X = t[None] + 1j * analytic.STEP * seeds
         S = self._evaluate(X.astype(np.complex128))
-        return ControlKinematics(
-            analytic.value(S)[:, :3], analytic.derivative(S)[:, :, :3], owners, self.n_dofs
-        )
+        skinning = analytic.value(S)[:, :3]
+        self._remember(pose, skinning)
+        return ControlKinematics(skinning, analytic.derivative(S)[:, :, :3], owners, self.n_dofs)
+
+    def _remember(self, pose: bytes, skinning: np.ndarray) -> None:
+        """Keep the skinning matrices of the last :data:`RECENT_POSES` poses evaluated: a solve asks again
+        for the pose its last stage ended on (its energy, the patches' gaps, how deep the skin lies),
+        and one evaluation of this rig costs about as much as a whole solve's step of a plain one."""
+        skinning.flags.writeable = False
+        self._recent[pose] = skinning
+        if len(self._recent) > RECENT_POSES:
+            del self._recent[next(iter(self._recent))]
+
+    @cached_property
+    def _recent(self) -> dict[bytes, np.ndarray]:
+        return {}
 
     def _seeding(self, dofs: tuple[int, ...] | None) -> tuple[np.ndarray, np.ndarray]:
         """The complex-step seeds (k, d) for the given DOFs (default all) and, per seed and deformer, the
