@@ -108,8 +108,8 @@ PRESS_DISTANCE = 0.15
 #: units u, or than it was before pressing if that was deeper: under 1 mm on hands up to 31 cm across
 #: (0.95 mm on the procedural human hand, whose bounding box is 29.6 cm across).
 PRESS_DEPTH = 0.08
-#: A patch a solve leaves short of touching weighs this many times more in the next round of pressing
-#: (:meth:`ContactIK._pressed`), of at most :data:`PRESS_ROUNDS`.
+#: While a patch is short of touching, the contacts weigh this many times more in the next round of
+#: pressing (:meth:`ContactIK._pressed`), of at most :data:`PRESS_ROUNDS`.
 PRESS_FACTOR = 10.0
 PRESS_ROUNDS = 3
 #: Evaluations of each round of pressing: it starts near its end.
@@ -461,9 +461,13 @@ class ContactIK:
         self._solids = []  # what the hand's vertices stay out of: (term, weight, signed distance)
         if obstacle is not None:
             self._solids.append(("table", self.weights.t, obstacle.evaluate))
+        self._exact = []  # the same, exact at any depth (pressing's check), each followed as the skin moves
+        if obstacle is not None:
+            self._exact.append(obstacle.evaluate)
         if keep_out is not None:
             inside = NarrowBand(keep_out, KEEP_OUT_BAND * self.unit).evaluate
             self._solids.append(("penetration", self.weights.o, inside))
+            self._exact.append(NarrowBand(keep_out, np.inf).evaluate)
         extra = movable_vertices(hand) if self._solids else None
         self._skin = hand.point_skin(sets, extra)
         # Internal variables: locations in units of u, angles in radians.
@@ -675,23 +679,23 @@ class ContactIK:
 
         With a strong prior (Contact Edit's λp) and patches placed by eye, a patch's best compromise
         may hover a few millimetres off the object: a curled finger's prior outweighs its last few
-        millimetres. A person asked for the patch to touch, so the contacts' weights of every patch
-        farther than :data:`PRESS_DISTANCE` from its targets grow by :data:`PRESS_FACTOR` and the solve
-        goes on from its pose, :data:`PRESS_ROUNDS` times at most, each of at most
-        :data:`PRESS_EVALUATIONS`, and kept only if it leaves fewer patches unreached, or as many nearer
-        touching in all (:meth:`_standing`), without pushing the skin in (:data:`PRESS_DEPTH`): a
-        patch out of reach must not drag the others off, but a patch the last round let go of is
-        pressed in the next."""
+        millimetres. A person asked for the patch to touch, so while a patch lies farther than
+        :data:`PRESS_DISTANCE` from its targets every contact's weight grows by :data:`PRESS_FACTOR`
+        (the prior and the solids weigh that much less) and the solve goes on from its pose,
+        :data:`PRESS_ROUNDS` times at most, each of at most :data:`PRESS_EVALUATIONS`, and kept only if
+        it leaves fewer patches unreached, or as many nearer touching in all (:meth:`_standing`),
+        without pushing the skin in (:data:`PRESS_DEPTH`). Every patch, not only the short ones: a patch
+        left as it was weighs less than those pressed, and slipped off in their round (the Rigify hand's
+        palm on a cylinder, from 1.3 to 3.7 mm); and a patch out of reach drags the others no more than
+        it did in the solve."""
         factors, allowed = self.contact_weights, None
         for _ in range(PRESS_ROUNDS):
             budget = min(int(max_evaluations) - result.iterations, PRESS_EVALUATIONS)
-            pressed = self._short(result)
-            if not pressed or budget <= 0 or result.status in ("cancelled", "no free DOFs"):
+            if not self._short(result) or budget <= 0 or result.status in ("cancelled", "no free DOFs"):
                 break
             if allowed is None:
                 allowed = max(self._depth(result.theta), PRESS_DEPTH * self.unit)
-            short = np.isin(self.patch_of, [self.patch_names.index(name) for name in pressed])
-            factors = factors * np.where(short, PRESS_FACTOR, 1.0)
+            factors = factors * PRESS_FACTOR
             told = None if progress is None else _counting_on(progress, result.iterations)
             more = self._subset(np.ones(len(factors), bool), factors)._solve(
                 result.theta, free, told, budget, ftol_rel, "local"
@@ -710,16 +714,16 @@ class ContactIK:
 
     def _depth(self, theta) -> float:
         """How deep the skin the solve moves lies inside the table or the object at θ (d,) (0 outside;
-        exact, where the keep-out term's narrow band sees no deeper than its band)."""
-        solids = [solid for solid in (self.obstacle, self.keep_out) if solid is not None]
-        if not solids:
+        exact, where the keep-out term's narrow band sees no deeper than its band; the object queried
+        again only where the skin may have come inside since the last call)."""
+        if not self._exact:
             return 0.0
         V = self._skin.vertices.positions(self.hand.rig.kinematics(theta, derivatives=False))
-        return max(0.0, -min(float(solid.evaluate(V[self._skin.extra_rows])[0].min()) for solid in solids))
+        return max(0.0, -min(float(evaluate(V[self._skin.extra_rows])[0].min()) for evaluate in self._exact))
 
-    def _short(self, result: SolveResult) -> list[str]:
-        """The patches of ``result`` that pressing goes on with: farther than :data:`PRESS_DISTANCE`."""
-        return [name for name, gap in result.gaps.items() if gap > PRESS_DISTANCE * self.unit]
+    def _short(self, result: SolveResult) -> bool:
+        """Whether pressing goes on from ``result``: a patch lies farther than :data:`PRESS_DISTANCE`."""
+        return any(gap > PRESS_DISTANCE * self.unit for gap in result.gaps.values())
 
     def _standing(self, result: SolveResult) -> tuple[int, float]:
         """How far a result is from every patch touching, to compare two (lower is nearer): how many
