@@ -20,17 +20,17 @@ module finds the start instead, in three steps repeated a few times, and a fourt
    grasp it reaches in tens without them, and from that grasp the solids only push the skin out; but a
    grasp deep in the object (a patch out of reach pulling the skin in) is pushed out more slowly still.
 
-It starts once from the fingers as given, once from the open hand (when they differ) and once from that
-hand with its fingers curled (every joint but the root's that moves the pads along their normals, the
-wrist's too, turned by :data:`CURL`): laid onto contacts around an object, flat pads make a chord
-through it, and a finger solved from there without the solids threads the object's wall, where the
-local solve cannot get it out; curled pads make an arc and the root fits outside. It keeps the start
-with the lowest energy, or the hand where it stands with only its fingers solved (step 2 alone), if
-that is lower still: a hand may already stand where its grasp is, with only its fingers to wrap (the
-Example's hand beside its mug), and a root fit of the open fingers' pads would lay it through the
-object; step 4 follows only a root fit (the hand where it stands has no way to travel, and its fingers
-wrap along the walls) and only with solids to keep the skin out of. The solve then goes on from the
-start kept with every term.
+It starts once from the fingers as given, once from the open hand (when they differ) and once from that hand
+with its fingers curled (every joint but the root's that moves the pads along their normals, the wrist's too,
+turned by :data:`CURL`): laid onto contacts around an object, flat pads make a chord through it, and a finger
+solved from there without the solids threads the object's wall, where the local solve cannot get it out;
+curled pads make an arc and the root fits outside. The starts go through the rounds side by side, and one
+whose energy after a round is :data:`PRUNE` times the best's goes no further. It keeps the start with the
+lowest energy, or the hand where it stands with only its fingers solved (step 2 alone, in rounds as well), if
+that is lower still: a hand may already stand where its grasp is, with only its fingers to wrap (the Example's
+hand beside its mug), and a root fit of the open fingers' pads would lay it through the object; step 4 follows
+only a root fit (the hand where it stands has no way to travel, and its fingers wrap along the walls) and only
+with solids to keep the skin out of. The solve then goes on from the start kept with every term.
 """
 
 from __future__ import annotations

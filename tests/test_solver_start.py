@@ -92,6 +92,34 @@ def test_the_narrow_band_queries_skin_resting_just_off_the_surface_only_once_it_
     np.testing.assert_allclose(signed[~far], exact[~far], rtol=0, atol=1e-15)
 
 
+def test_an_unbounded_band_gives_exact_depths_at_any_depth_and_queries_only_what_may_be_inside():
+    """Pressing's depth check: a hand's middle sunk in a ball (skin up to 18 mm deep), moved a little at a
+    time. The deepest point is the solid's own at every step, deep skin included (a band would see it
+    as outside), while skin found outside by more than it moved is not queried again."""
+    hand = hands.make_hand("human")
+    V = hand.posed_vertices(hand.rig.rest)
+    ball = MeshSDF(objects.sphere(0.03))
+    V = V - V.mean(0)
+    queried = []
+
+    class Counting:
+        def evaluate(self, x, b):
+            queried.append(len(x))
+            return ball.evaluate(x, b)
+
+    tracked = NarrowBand(Counting(), np.inf)
+    rng = np.random.default_rng(4)
+    for step in range(4):
+        X = V + rng.normal(size=V.shape) * 3e-4 * step
+        exact = ball(X)
+        signed, _ = tracked.evaluate(X)
+        assert exact.min() < -0.015  # deeper than the keep-out's band (6 mm on this hand)
+        inside = exact < 0
+        np.testing.assert_allclose(signed[inside], exact[inside], rtol=0, atol=1e-15)
+        assert np.all(signed[~inside] > 0)
+    assert queried[0] == len(V) and max(queried[1:]) < len(V) / 2
+
+
 def _layout(angle_degrees: float, shift: float, seed: int = 0):
     """A grasp that exists (the fingers wrapped around a cylinder by flex-to-contact), the pads a person
     would paint on it (:func:`solver.layouts.known_grip`: the parts of the fingertips that touch), their
