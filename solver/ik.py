@@ -814,11 +814,14 @@ class ContactIK:
             )
         if start != "auto":
             return start
-        if not can:
-            return "local"
+        return "global" if can and self.far(theta) else "local"
+
+    def far(self, theta) -> bool:
+        """Whether the hand at θ (d,) stands far from its contacts, so that a solve from there must move
+        it: more than one patch (the only one, if there is one) farther than :data:`EDIT_REACH` from its
+        targets, where a patch moved or turned by an edit is one."""
         gaps = np.array(list(self.gaps(theta).values()))
-        far = int(np.sum(gaps > EDIT_REACH * self.unit))
-        return "local" if far <= min(1, gaps.size - 1) else "global"
+        return int(np.sum(gaps > EDIT_REACH * self.unit)) > min(1, gaps.size - 1)
 
     def _descend(self, theta, index, max_evaluations, ftol_rel, tally, solids=True, status=False):
         """A local solve of the DOFs ``index`` from θ with the configured algorithm, every evaluation

@@ -29,8 +29,9 @@ whose energy after a round is :data:`PRUNE` times the best's goes no further. It
 lowest energy, or the hand where it stands with only its fingers solved (step 2 alone, in rounds as well), if
 that is lower still: a hand may already stand where its grasp is, with only its fingers to wrap (the Example's
 hand beside its mug), and a root fit of the open fingers' pads would lay it through the object; step 4 follows
-only a root fit (the hand where it stands has no way to travel, and its fingers wrap along the walls) and only
-with solids to keep the skin out of. The solve then goes on from the start kept with every term.
+a root fit, or the hand where it stands if that is still far from its contacts (:meth:`~solver.ContactIK.far`:
+the solve must then move it, while near them its fingers wrap along the walls), and only with solids to keep
+the skin out of. The solve then goes on from the start kept with every term.
 """
 
 from __future__ import annotations
@@ -106,8 +107,8 @@ def grasp_start(ik, theta: np.ndarray, index: np.ndarray, descend: Descend, judg
             candidates[i], energies[i] = t, judge(t)
         going &= energies <= PRUNE * energies.min()
     best = int(np.argmin(energies))
-    if best == stands or (ik.obstacle is None and ik.keep_out is None):
-        return candidates[best]  # the hand where it stands has no way to travel; or nothing to keep out of
+    if (best == stands and not ik.far(candidates[best])) or (ik.obstacle is None and ik.keep_out is None):
+        return candidates[best]  # the hand at its grasp, only its fingers to wrap; or no solids
     grasp = descend(candidates[best], index, UNSOLID_EVALUATIONS)
     return grasp if judge(grasp) < energies[best] else candidates[best]
 
