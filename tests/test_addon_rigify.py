@@ -97,6 +97,20 @@ def test_the_solver_deforms_the_rigify_hand_as_blender_does(rigify_blend, tmp_pa
             bridge.apply_pose(posed, theta)
             ours = posed.to_hand(posed.skin.posed_vertices(theta))
             worst.append(float(np.abs(evaluated_vertices(hand) - ours).max()))
+        # A solve of the fingers alone keeps what only the root moves (the arm's stacks): the same skin
+        # and derivatives as a rig that never evaluated, with the root as it was and after it moved.
+        from solver.rig.control_rig import ControlRig
+        fingers = tuple(np.flatnonzero(posed.rig.dof_bone != 0).tolist())
+        fresh = ControlRig(plan)
+        a = control_pose(posed, rng)
+        b, c = a.copy(), control_pose(posed, rng)
+        b[6:] = c[6:]
+        kept = []
+        for t in (a, b, c, b):
+            ours, theirs = posed.rig.kinematics(t, True, fingers), fresh.kinematics(t, True, fingers)
+            fresh = ControlRig(plan)
+            kept.append(max(float(np.abs(ours.skinning - theirs.skinning).max()),
+                            float(np.abs(ours.tangents - theirs.tangents).max())))
         # Read back: the posed rig is the same pose.
         again = bridge.posed_hand(hand, faces)
         back = float(np.abs(again.skin.posed_vertices(again.start) - posed.skin.posed_vertices(theta)).max())
@@ -112,6 +126,8 @@ def test_the_solver_deforms_the_rigify_hand_as_blender_does(rigify_blend, tmp_pa
         bag = anim_utils.action_get_channelbag_for_slot(data.action, data.action_slot)
         paths = sorted({c.data_path for c in bag.fcurves})
         result(dict(worst=worst, back=back, replay=replay, paths=paths, root=plan.root, wrist=plan.hand_root,
+                    kept=kept, kept_stacks=sum(st["root_only"] for st in posed.rig._compiled.stacks),
+                    held=len(posed.rig._compiled._root_posed),
                     controls=list(plan.controls),
                     locked=posed.rig.locked[:6].tolist(), deform=list(plan.deform),
                     bbones=sum(posed.rig.armature[n].bbone is not None for n in plan.deform)))
@@ -127,6 +143,8 @@ def test_the_solver_deforms_the_rigify_hand_as_blender_does(rigify_blend, tmp_pa
     assert out["bbones"] >= 15  # the fingers' deform bones bend by their segments
     assert max(out["worst"]) < 1e-5, out["worst"]  # metres: Blender's float32
     assert out["back"] < 1e-5
+    assert out["kept_stacks"] >= 5 and max(out["kept"]) < 1e-12, out["kept"]  # 9 stacks with the arm in FK
+    assert out["held"] == out["kept_stacks"]  # and they were kept
     assert out["replay"] < 1e-5  # the keys on the controls play the pose back
     assert 'pose.bones["f_index.02.R"].rotation_quaternion' in out["paths"]  # keyed in the control's own mode
     assert 'pose.bones["hand_fk.R"].rotation_quaternion' in out["paths"]

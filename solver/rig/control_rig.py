@@ -386,8 +386,8 @@ class ControlRig(EulerDofs):
         return {}
 
     @cached_property
-    def _bone_dofs(self) -> dict[str, set[int]]:
-        """Per deform bone, the DOFs its skinning matrices depend on (through its pose and its handles)."""
+    def _posed_dofs(self) -> dict[str, set[int]]:
+        """Per bone the evaluation poses, the DOFs its pose depends on (its own and its inputs')."""
         arm, plan = self.armature, self.plan
         own: dict[str, set[int]] = {n: set(range(6)) for n in plan.rigid}
         for n, i in self._control_index.items():
@@ -401,6 +401,12 @@ class ControlRig(EulerDofs):
                 for up in arm.inputs[n]:
                     found |= deps.get(up, set())
             deps[n] = found
+        return deps
+
+    @cached_property
+    def _bone_dofs(self) -> dict[str, set[int]]:
+        """Per deform bone, the DOFs its skinning matrices depend on (through its pose and its handles)."""
+        arm, deps = self.armature, self._posed_dofs
         out = {}
         for n in self.deform_bones:
             found = set(deps.get(n, ()))
@@ -477,6 +483,11 @@ class _Program:
         self.world = spaces.World.of(arm.world)
         self._controls(rig, index)
         self.stacks = self._stacks(rig, [n for n in evaluated if n not in plan.rigid], index)
+        root = set(range(6))
+        for st in self.stacks:
+            st["root_only"] = all(rig._posed_dofs[self.names[i]] <= root for i in st["out"])
+        self._root_pose: bytes | None = None  # the root DOFs the kept root-only stacks were posed at
+        self._root_posed: dict[int, np.ndarray] = {}
         self._deformers(rig, index)
 
     def _controls(self, rig: ControlRig, index) -> None:
@@ -603,7 +614,11 @@ class _Program:
         store[:] = self.initial
         store[self.rigid] = rig._root_transform(X)[None] @ self.rigid_rest
         control_locals = self._control_locals(X)
-        for st in self.stacks:
+        root = self._steady_root(X)
+        for i, st in enumerate(self.stacks):
+            if root and i in self._root_posed:
+                store[st["out"]] = self._root_posed[i]
+                continue
             local = st["local"]
             if st["control_rows"].size:
                 L = np.array(np.broadcast_to(local[:, None], (len(local), k, 4, 4)), dtype=X.dtype)
@@ -620,6 +635,8 @@ class _Program:
                 shared=shared,
             )
             store[st["out"]] = out.swapaxes(0, 1)
+            if root and st["root_only"]:
+                self._root_posed[i] = store[st["out"], :1].real.copy()
         S = np.empty((k, self.n_deformers, 4, 4), dtype=X.dtype)
         if self.plain_inverse is not None:
             S[:, self.plain_columns] = (store[self.plain_rows] @ self.plain_inverse).swapaxes(0, 1)
@@ -629,6 +646,22 @@ class _Program:
             )
             S[:, columns] = np.broadcast_to(joints, (k, *joints.shape[-4:]))
         return S
+
+    def _steady_root(self, X: np.ndarray) -> bool:
+        """Whether the rows X (k, d) share one root pose and step no root DOF, so that the stacks only
+        the root moves (the arm's, on a production rig: 17 of the Rigify hand's 38) are posed as they
+        were at the last call with that root pose, kept: a solve of the fingers alone evaluates them once.
+        """
+        root = X[:, :6]
+        if np.iscomplexobj(X) and np.any(root.imag):
+            return False
+        if np.any(root.real != root[:1].real):
+            return False
+        key = root[0].real.tobytes()
+        if key != self._root_pose:
+            self._root_pose = key
+            self._root_posed.clear()
+        return True
 
     @staticmethod
     def _view(store, rows):
