@@ -248,9 +248,10 @@ def _merge(vertices: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 def _text(data: bytes, what: str) -> str:
+    """The file's text; past a UTF-8 byte-order mark, which Windows editors write before the first line."""
     if b"\0" in data:
         raise MeshError(f"the file holds binary data, not {what} text")
-    return data.decode("utf-8", errors="replace")
+    return data.decode("utf-8-sig", errors="replace")
 
 
 def _import_trimesh(kind: str):

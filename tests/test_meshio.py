@@ -213,6 +213,17 @@ def test_hand_written_obj_keeps_the_files_numbering(tmp_path):
     assert np.array_equal(mesh.triangle_corners, expected.triangle_corners)
 
 
+def test_a_byte_order_mark_is_read_past(tmp_path):
+    """Windows editors write a UTF-8 byte-order mark before the first line: the first vertex was then an
+    unknown record, skipped, and the faces pointed past the last vertex."""
+    bom, text = "\ufeff", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 2 4 3\nf 1 2 3\n"
+    obj = load_mesh(write(tmp_path / "bom.obj", bom + text))
+    assert np.array_equal(obj.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    assert np.array_equal(obj.faces, [[1, 3, 2], [0, 1, 2]])
+    off = load_mesh(write(tmp_path / "bom.off", bom + HAND_OFF))
+    assert np.array_equal(off.faces, load_mesh(write(tmp_path / "plain.off", HAND_OFF)).faces)
+
+
 def test_hand_written_obj_of_triangles_is_read_as_is(tmp_path):
     text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 2 4 3\nf 1 2 3\n"
     mesh = load_mesh(write(tmp_path / "tris.obj", text))
