@@ -463,10 +463,9 @@ class ContactIK:
                 )
         self.obstacle, self.keep_out = obstacle, keep_out
         self._solids = []  # what the hand's vertices stay out of: (term, weight, signed distance)
-        if obstacle is not None:
-            self._solids.append(("table", self.weights.t, obstacle.evaluate))
         self._exact = []  # the same, exact at any depth (pressing's check), each followed as the skin moves
         if obstacle is not None:
+            self._solids.append(("table", self.weights.t, obstacle.evaluate))
             self._exact.append(obstacle.evaluate)
         if keep_out is not None:
             inside = NarrowBand(keep_out, KEEP_OUT_BAND * self.unit).evaluate

@@ -614,7 +614,7 @@ class _Program:
         store[:] = self.initial
         store[self.rigid] = rig._root_transform(X)[None] @ self.rigid_rest
         control_locals = self._control_locals(X)
-        root = self._steady_root(X)
+        root = self._hold_root(X)
         for i, st in enumerate(self.stacks):
             if root and i in self._root_posed:
                 store[st["out"]] = self._root_posed[i]
@@ -636,7 +636,7 @@ class _Program:
             )
             store[st["out"]] = out.swapaxes(0, 1)
             if root and st["root_only"]:
-                self._root_posed[i] = store[st["out"], :1].real.copy()
+                self._root_posed[i] = store[st["out"], :1].real  # a copy already (fancy indexing)
         S = np.empty((k, self.n_deformers, 4, 4), dtype=X.dtype)
         if self.plain_inverse is not None:
             S[:, self.plain_columns] = (store[self.plain_rows] @ self.plain_inverse).swapaxes(0, 1)
@@ -647,11 +647,11 @@ class _Program:
             S[:, columns] = np.broadcast_to(joints, (k, *joints.shape[-4:]))
         return S
 
-    def _steady_root(self, X: np.ndarray) -> bool:
+    def _hold_root(self, X: np.ndarray) -> bool:
         """Whether the rows X (k, d) share one root pose and step no root DOF, so that the stacks only
         the root moves (the arm's, on a production rig: 17 of the Rigify hand's 38) are posed as they
         were at the last call with that root pose, kept: a solve of the fingers alone evaluates them once.
-        """
+        What was kept at another root pose is dropped."""
         root = X[:, :6]
         if np.iscomplexobj(X) and np.any(root.imag):
             return False
