@@ -20,10 +20,13 @@ three JSON files; each is read and written here as their code does, with surface
   (quaternion, translation) and ``hand`` (the root joint's quaternion and translation, then each
   joint's values). Their exporter treats a joint free about all three axes as a ball joint (its
   rotation as a quaternion, 4 values), writes one Euler angle (radians) per free axis of the others,
-  and leaves out joints with none. Lengths are centimetres (Maya's default unit). Our writer maps a
-  :class:`~solver.Rig` the same way: the root bone's armature-space rotation and head position, a bone
-  with three unlocked rotation DOFs as the quaternion of its local rotation (``matrix_basis``), the
-  others' unlocked Euler angles in x, y, z order. → :class:`KeyframeMotion`.
+  and leaves out joints with none. Lengths are centimetres (Maya's default unit). Joints are listed
+  in the order its stack visits them (lines 428-439 and 627-636): depth first, a joint's last child
+  first, so a hand's list runs forearm, hand, thumb …, index last. Our writer maps a
+  :class:`~solver.Rig` the same way and in that order: the root bone's armature-space rotation and
+  head position, a bone with three unlocked rotation DOFs as the quaternion of its local rotation
+  (``matrix_basis``), the others' unlocked Euler angles in x, y, z order. Our reader matches joints
+  to bones by name, never by position (their plugin has no reader to follow). → :class:`KeyframeMotion`.
 
 Frames: Maya numbers them from the timeline's start (1 in their scenes); our frame ``f`` is their
 ``first_frame + f``. Every reader validates what it loads and raises :class:`InterchangeError` naming
@@ -273,12 +276,35 @@ def _pose_values(T: np.ndarray) -> np.ndarray:
     return np.concatenate([_quaternions(T[:, :3, :3]), T[:, :3, 3] * CM], axis=1)
 
 
-def _joint_layout(rig: Rig) -> tuple[list[int], list[np.ndarray]]:
-    """The joints a rig exports (bone ids) and each one's free rotation components (0, 1, 2 = x, y, z)."""
-    locked = np.asarray(rig.locked, bool)
-    bones, components = [0], [np.arange(3)]
+def _maya_order(rig: Rig) -> list[int]:
+    """The rig's bones in the order the authors' exporter visits Maya's joints.
+
+    ``KeyframeMotionSequenceIO::parseKinematicTree`` (``keyframeMotionSequenceIO.cpp`` lines 428-439
+    and 627-636) walks the skeleton with a stack: it pops a joint, lists it, then pushes its children
+    ``child(0)`` … ``child(n-1)``, so the last child is popped next and its whole subtree is listed
+    before the child before it (depth first, siblings last to first). A child's place among its
+    siblings is its order in the rig, which is Maya's child order for a skeleton built or imported in
+    that order.
+    """
+    children: list[list[int]] = [[] for _ in range(rig.n_bones)]
     for b in range(1, rig.n_bones):
-        free = np.flatnonzero(~locked[rig.bone_dofs(b)])
+        children[int(rig.parents[b])].append(b)
+    order, stack = [], [0]
+    while stack:
+        b = stack.pop()
+        order.append(b)
+        stack.extend(children[b])
+    return order
+
+
+def _joint_layout(rig: Rig) -> tuple[list[int], list[np.ndarray]]:
+    """The joints a rig exports (bone ids, in the exporter's stack order, :func:`_maya_order`) and each
+    one's free rotation components (0, 1, 2 = x, y, z). A bone with every axis locked is left out, as
+    the exporter leaves out welded joints (line 611), but its children are still visited (627-636)."""
+    locked = np.asarray(rig.locked, bool)
+    bones, components = [], []
+    for b in _maya_order(rig):
+        free = np.arange(3) if b == 0 else np.flatnonzero(~locked[rig.bone_dofs(b)])
         if free.size:
             bones.append(b)
             components.append(free)
@@ -306,6 +332,13 @@ class KeyframeMotion:
     object : (F, 7) ndarray
         The object's quaternion w x y z and translation (cm).
     hand : (F, sum(joint_dofs)) ndarray
+        Each joint's values in ``joint_names`` order, the root's first.
+    source : str or None
+        The file it was read from (named in errors); None when made by :meth:`from_rig`.
+
+    Joints are listed as the authors' exporter lists them, depth first from a stack with a joint's
+    last child first (:func:`_maya_order`); :meth:`from_rig` writes that order too, so our export of a
+    rig lists its joints as theirs of the same rig would, and :meth:`theta` matches joints by name.
     """
 
     framerate: int
@@ -315,6 +348,7 @@ class KeyframeMotion:
     frames: np.ndarray
     object: np.ndarray
     hand: np.ndarray
+    source: str | None = None
 
     @classmethod
     def from_rig(
@@ -358,27 +392,59 @@ class KeyframeMotion:
 
     def theta(self, rig: Rig, default=None) -> np.ndarray:
         """(F, d) the rig's DOFs of every frame: the inverse of :meth:`from_rig`. Values the file does
-        not hold (locked axes) come from ``default`` (d,), the rig's rest pose if not given."""
+        not hold (locked axes) come from ``default`` (d,), the rig's rest pose if not given.
+
+        Joints are matched to the rig's bones by name, in whatever order the file lists them: the
+        authors' exporter lists them in its stack order (:func:`_maya_order`), not the rig's. Their
+        tools have no reader to follow here (the plugin is export only, ``haveReadMethod`` returns
+        false, line 249), and a name is what identifies a joint in their schema (``jointNames``,
+        "name_of_joint_0_according_to_URDF" in their README), so a position never decides.
+
+        Raises
+        ------
+        InterchangeError
+            Naming the file and the joints: the rig's joints the export lacks, the export's joints
+            the rig lacks (or has with every axis locked), and joints whose value counts differ
+            (e.g. a ball joint, 4 values, where the rig frees one axis).
+        """
         bones, components = _joint_layout(rig)
-        names = tuple(rig.names[b] for b in bones)
-        if names != self.joint_names or tuple(_joint_dofs(components)) != self.joint_dofs:
-            raise InterchangeError(
-                f"the export's joints ({len(self.joint_names)}: {', '.join(self.joint_names[:4])}, …) are "
-                f"not those of the rig ({len(names)}: {', '.join(names[:4])}, …), or carry other DOFs"
-            )
-        start = np.concatenate([[0], np.cumsum(self.joint_dofs)])
+        names = [rig.names[b] for b in bones]
+        where = f"{self.source}: " if self.source else ""
+        missing = [n for n in names if n not in self.joint_names]
+        extra = [n for n in self.joint_names if n not in names]
+        if missing or extra:
+            parts = []
+            if missing:
+                parts.append(f"the rig's joints {', '.join(map(repr, missing))} are not in the export")
+            if extra:
+                locked = " (every axis locked on the rig)"
+                listed = ", ".join(repr(n) + (locked if n in rig.names else "") for n in extra)
+                parts.append(f"the export's joints {listed} are not on the rig")
+            raise InterchangeError(f"{where}{'; '.join(parts)}")
+        expected = dict(zip(names, _joint_dofs(components), strict=True))
+        other = [
+            f"{n!r} has {d} values in the export, {expected[n]} on the rig"
+            for n, d in zip(self.joint_names, self.joint_dofs, strict=True)
+            if d != expected[n]
+        ]
+        if other:
+            raise InterchangeError(f"{where}joints carry other DOFs than the rig's: {'; '.join(other)}")
+        ends = np.cumsum(self.joint_dofs).tolist()
+        column = {n: (e - d, e) for n, d, e in zip(self.joint_names, self.joint_dofs, ends, strict=True)}
         default = rig.rest if default is None else rig.check_theta(default, "default")
         F = len(self.frames)
         basis = np.repeat(rig.basis(default)[None], F, axis=0)
-        root = _rigid(self.hand[:, 0:4], self.hand[:, 4:7])
+        a, b = column[names[0]]
+        root = _rigid(self.hand[:, a : a + 4], self.hand[:, a + 4 : b])
         basis[:, 0] = np.linalg.inv(rig.matrix_local[0]) @ root
         partial = []
-        for j, (b, c) in enumerate(zip(bones[1:], components[1:], strict=True), start=1):
-            values = self.hand[:, start[j] : start[j + 1]]
+        for name, bone, c in zip(names[1:], bones[1:], components[1:], strict=True):
+            a, b = column[name]
+            values = self.hand[:, a:b]
             if c.size == 3:
-                basis[:, b, :3, :3] = _matrices(values)
+                basis[:, bone, :3, :3] = _matrices(values)
             else:
-                partial.append((b, c, values))
+                partial.append((bone, c, values))
         theta = np.empty((F, rig.n_dofs))
         previous = default
         for f in range(F):  # each frame's Euler angles chosen nearest the last's: no 2π jumps
@@ -441,7 +507,7 @@ class KeyframeMotion:
             raise InterchangeError(f"{where} has no frames")
         return cls(
             framerate, tuple(names), tuple(dofs), table, np.array(frames, np.int64),
-            np.array(obj), np.array(hand),
+            np.array(obj), np.array(hand), where,
         )  # fmt: skip
 
 
