@@ -28,9 +28,15 @@ three JSON files; each is read and written here as their code does, with surface
   (``matrix_basis``), the others' unlocked Euler angles in x, y, z order. Our reader matches joints
   to bones by name, never by position (their plugin has no reader to follow). → :class:`KeyframeMotion`.
 
-Frames: Maya numbers them from the timeline's start (1 in their scenes); our frame ``f`` is their
-``first_frame + f``. Every reader validates what it loads and raises :class:`InterchangeError` naming
-the file, the frame and the entry; nothing is half loaded. Writers write atomically.
+Frames: Maya numbers them from the timeline's start, and their tools write Maya's numbers; our frame
+``f`` is their ``first_frame + f``. A motion says what its first frame was numbered
+(:attr:`Motion.first_frame <solver.retarget.Motion.first_frame>`): 1 by default, as a fresh Maya
+timeline starts, but 0 for a GRAB import, whose plugin keys frames 0 … F-1 (:mod:`.grab`). Give the
+motion (``ContactSequence.load(…, motion=m)``, :meth:`ContactSequence.of_motion`,
+``save_kmexp(…, first_frame=m.first_frame)``) and the numbering follows it.
+
+Every reader validates what it loads and raises :class:`InterchangeError` naming the file, the frame
+and the entry; nothing is half loaded. Writers write atomically.
 """
 
 from __future__ import annotations
@@ -50,7 +56,7 @@ from geodesics.schema import Fields
 from ..errors import SolverError
 from ..rig import Rig
 from .annotations import MarkerAnnotation
-from .motion import Contacts, MotionError
+from .motion import Contacts, Motion, MotionError
 from .transfer import keep_rows
 
 #: Metres to the centimetres of the authors' Maya scenes.
@@ -136,13 +142,30 @@ class ContactSequence:
         write_atomically(path, json.dumps({"meshName": self.mesh_name, "data": data}, indent=1))
 
     @classmethod
+    def of_motion(cls, motion: Motion, which: str, mesh_name: str | None = None) -> ContactSequence:
+        """The hand's or the object's contacts of a motion (``which``: ``"hand"`` or ``"object"``), to
+        save as the authors' file of the motion's scene: frames numbered from ``motion.first_frame``,
+        nothing omitted, mesh name ``"handShape"`` or ``"objectShape"`` (their scenes' shapes) unless
+        given. Save it with the mesh the contacts are on (``motion.hand_mesh`` or
+        ``motion.object_mesh``)."""
+        if which not in ("hand", "object"):
+            raise InterchangeError(f"which must be 'hand' or 'object', got {which!r}")
+        contacts = getattr(motion, f"{which}_contacts")
+        if contacts is None:
+            raise InterchangeError(f"the motion has no {which} contacts")
+        name = f"{which}Shape" if mesh_name is None else mesh_name
+        return cls(name, contacts, np.zeros(len(contacts), bool), motion.first_frame)
+
+    @classmethod
     def load(
         cls,
         path,
         mesh: TriMesh,
         n_frames: int | None = None,
-        first_frame: int = 1,
+        first_frame: int | None = None,
         mesh_name: str | None = None,
+        *,
+        motion: Motion | None = None,
     ) -> ContactSequence:
         """Read an authors' contact file onto ``mesh``.
 
@@ -152,19 +175,34 @@ class ContactSequence:
         mesh : TriMesh
             The mesh the file was made on, faces in the same order.
         n_frames : int, optional
-            The motion's frame count (default: up to the last frame with contacts).
-        first_frame : int
-            The file's frame number of our frame 0 (1: Maya's default timeline).
+            The motion's frame count (default: the motion's, or up to the last frame with contacts).
+        first_frame : int, optional
+            The file's frame number of our frame 0 (default: the motion's ``first_frame``, else 1,
+            Maya's default timeline start).
         mesh_name : str, optional
             When given, the file must be for this mesh name.
+        motion : Motion, optional
+            The motion the file was made for, in the scene it came from: its frame count and its
+            ``first_frame`` (0 for a GRAB import: their plugin keys frames from 0, and a contact file
+            made in that scene numbers frames as Maya does) place the file's frames on its own, so
+            that file frame ``k`` is the motion's frame ``k - motion.first_frame``.
 
         Raises
         ------
         InterchangeError
             Naming the file, frame and entry: not JSON, missing or mistyped fields, a frame before
             ``first_frame`` or beyond ``n_frames`` or repeated, an unreadable point, an omission index
-            out of range.
+            out of range; or ``n_frames``/``first_frame`` given that contradict ``motion``.
         """
+        if motion is not None:
+            for name, given, own in (
+                ("n_frames", n_frames, motion.n_frames),
+                ("first_frame", first_frame, motion.first_frame),
+            ):
+                if given is not None and given != own:
+                    raise InterchangeError(f"{path}: {name}={given} contradicts the motion's {own}")
+            n_frames, first_frame = motion.n_frames, motion.first_frame
+        first_frame = 1 if first_frame is None else first_frame
         data = _read_json(path, "contacts")
         name = data.string("meshName")
         _check_mesh_name(name, mesh_name, path)
@@ -519,10 +557,12 @@ def _poses(rig: Rig, theta) -> np.ndarray:
 
 
 def save_kmexp(
-    path, rig: Rig, theta, object_poses, fps: float, table=None, table_size=None
+    path, rig: Rig, theta, object_poses, fps: float, table=None, table_size=None, first_frame: int = 1
 ) -> KeyframeMotion:
-    """Write a rig's motion as an authors' ``.kmexp`` (see :meth:`KeyframeMotion.from_rig`); returns it."""
-    export = KeyframeMotion.from_rig(rig, theta, object_poses, fps, table, table_size)
+    """Write a rig's motion as an authors' ``.kmexp`` (see :meth:`KeyframeMotion.from_rig`); returns it.
+    ``first_frame`` is the Maya frame number of frame 0, the motion's own (``Motion.first_frame``) for
+    a motion from their scenes: their exporter numbers frames from the timeline's start (line 165)."""
+    export = KeyframeMotion.from_rig(rig, theta, object_poses, fps, table, table_size, first_frame)
     export.save(path)
     return export
 
