@@ -5,6 +5,7 @@ their Maya reader (GRABMotionSequenceIO.cpp) expects, malformed files, and `cont
 
 import contextlib
 import io
+import json
 import warnings
 import zipfile
 
@@ -18,7 +19,8 @@ from geodesics import MeshWarning, TriMesh
 from geodesics.primitives import icosphere
 from solver.retarget import Motion, pair_motion
 from solver.retarget import synthetic as sy
-from solver.retarget.grab import GRAB_FPS, IGNORED, MEMBERS, GrabError, load_grab, save_grab
+from solver.retarget.grab import GRAB_FIRST_FRAME, GRAB_FPS, IGNORED, MEMBERS, GrabError, load_grab, save_grab
+from solver.retarget.interchange import ContactSequence, InterchangeError
 from solver.retarget.pairing import DEFAULT_CUTOFF
 
 SHORT = 4 * len(sy.PHASES)
@@ -91,10 +93,31 @@ def authors_export(path, verts_rh, rot_obj, trans_obj, rot_table, trans_table, c
 
 def contact_vertex_sets(motion: Motion) -> list[set]:
     """Per frame, the object vertices the object contacts sit on (each contact must be at a vertex)."""
-    c = motion.object_contacts
+    return vertex_sets(motion.object_mesh, motion.object_contacts)
+
+
+def vertex_sets(mesh: TriMesh, c) -> list[set]:
+    """Per frame, the vertices of ``mesh`` the contacts ``c`` sit on (each contact must be at a vertex)."""
     assert np.all(np.isin(c.bary, (0.0, 1.0))) and np.all(c.bary.sum(1) == 1.0)
-    vertex = motion.object_mesh.faces[c.faces, np.argmax(c.bary, axis=1)]
-    return [set(vertex[c.offsets[f] : c.offsets[f + 1]].tolist()) for f in range(motion.n_frames)]
+    vertex = mesh.faces[c.faces, np.argmax(c.bary, axis=1)]
+    return [set(vertex[c.offsets[f] : c.offsets[f + 1]].tolist()) for f in range(c.n_frames)]
+
+
+def authors_contact_file(path, grab_npz, timeline_end: int) -> None:
+    """The object's contact file of the Maya scene their plugin builds from ``grab_npz``, as their
+    contact exporter writes it. The import (GRABMotionSequenceIO.cpp) keys frame f at Maya time f for
+    f = 0 ... F-1 (lines 257-261) and makes, for each contact frame (389-405), a set named after that
+    frame's number holding "v <vertex>" strings (494-506). The exporter (contactSequenceIO.cpp) looks
+    the object shape's sets up for frame = 1 ... maxTime, the timeline's end, and writes each one found
+    with its number (50-74); ``timeline_end`` is that end, F - 1 once the timeline is set to the
+    motion's keys (their GRAB README)."""
+    file = members(grab_npz)
+    sets, at = {}, 0
+    for frame, count in zip(file["contactFrames"], file["objectContactFrameCounts"], strict=True):
+        sets[int(frame)] = [f"v {v}" for v in file["objectContactLocations"][at : at + count].tolist()]
+        at += int(count)
+    data = [{"frame": f, "contacts": sets[f]} for f in range(1, timeline_end + 1) if f in sets]
+    path.write_text(json.dumps({"meshName": "objectShape", "data": data}, indent=1))
 
 
 def world_points(mesh: TriMesh, vertices_per_frame, contacts) -> np.ndarray:
@@ -503,6 +526,49 @@ def test_corrupted_arrays_raise_grab_errors_only(tiny, tmp_path, name, dtype, sh
         assert isinstance(motion, Motion) and motion.n_frames == 3
 
 
+def test_a_grab_scenes_contact_file_lines_up_with_its_motion(motion, theirs, tmp_path):
+    """A contact file exported from the Maya scene of a GRAB import numbers frames as that scene does,
+    from 0: read with the motion, each of its frames lands on the motion's frame of the same contacts,
+    the motion read from the export and the same motion saved in our format and read back alike."""
+    path, contact_map = theirs
+    loaded = load_grab(path, motion.hand_mesh, motion.object_mesh, pair=False)
+    assert loaded.first_frame == GRAB_FIRST_FRAME == 0
+    F = loaded.n_frames
+    authors_contact_file(tmp_path / "objectContacts.json", path, timeline_end=F - 1)
+    expected = [set(np.flatnonzero(row).tolist()) for row in contact_map]
+    assert contact_vertex_sets(loaded) == expected
+    assert sum(len(e) > 0 for e in expected[1:]) > F // 2  # a file with many frames to misplace
+    loaded.save(tmp_path / "motion.npz")
+    for m in (loaded, Motion.load(tmp_path / "motion.npz")):
+        seq = ContactSequence.load(
+            tmp_path / "objectContacts.json", m.object_mesh, motion=m, mesh_name="objectShape"
+        )
+        got = vertex_sets(m.object_mesh, seq.contacts)
+        assert seq.first_frame == 0 and len(got) == F
+        assert got[1:] == expected[1:]
+        assert got[0] == set()  # the exporter's loop starts at frame 1: frame 0 never reaches a file
+        for f in np.flatnonzero([len(e) for e in expected[1:]]) + 1:
+            np.testing.assert_array_equal(
+                np.sort(seq.contacts.frame(f).positions(m.object_mesh), axis=0),
+                np.sort(m.object_mesh.vertices[sorted(expected[f])], axis=0),
+            )
+    # Written back for that scene, frames carry the numbers the import gave their contact sets.
+    ContactSequence.of_motion(loaded, "object").save(tmp_path / "ours.json", loaded.object_mesh)
+    written = json.loads((tmp_path / "ours.json").read_text())
+    assert written["meshName"] == "objectShape"
+    assert [e["frame"] for e in written["data"]] == members(path)["contactFrames"].tolist()
+    # Numbered from 1, as a fresh Maya timeline is, the same file lands one frame early.
+    shifted = vertex_sets(
+        loaded.object_mesh,
+        ContactSequence.load(tmp_path / "objectContacts.json", loaded.object_mesh, n_frames=F).contacts,
+    )
+    assert shifted[:-1] == expected[1:] != expected[:-1]
+    with pytest.raises(InterchangeError, match="first_frame=1 contradicts the motion's 0"):
+        ContactSequence.load(
+            tmp_path / "objectContacts.json", loaded.object_mesh, first_frame=1, motion=loaded
+        )
+
+
 # ---------------------------------------------------------------------------------------- the command
 
 
@@ -527,6 +593,7 @@ def test_import_grab_command_end_to_end(motion, theirs, tmp_path, capsys):
     np.testing.assert_array_equal(saved.hand_contacts.faces, expected.hand_contacts.faces)
     np.testing.assert_array_equal(saved.object_contacts.offsets, expected.object_contacts.offsets)
     assert saved.fps == 120.0 and saved.hand_contacts is not None
+    assert saved.first_frame == 0  # the Maya frame of its first frame, kept for its contact files
     # --no-pair keeps every object contact and finds no hand contacts.
     out2 = tmp_path / "unpaired.npz"
     more = ["--object-mesh", str(tmp_path / "object.obj"), "-o", str(out2), "--no-pair", "--fps", "60"]

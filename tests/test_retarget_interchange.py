@@ -248,7 +248,7 @@ def test_kmexp_errors(tmp_path):
     with pytest.raises(InterchangeError, match=r"frame 1\.hand must be 8 finite numbers, got \[1, 0"):
         KeyframeMotion.load(FIXTURES / "short_hand.kmexp")
     k = KeyframeMotion.load(FIXTURES / "motion.kmexp")
-    with pytest.raises(InterchangeError, match="not those of the rig"):
+    with pytest.raises(InterchangeError, match=r"motion\.kmexp: the rig's joints 'forearm', 'hand'"):
         k.theta(make_hand("human").rig)
     with pytest.raises(InterchangeError, match="whole frame rate"):
         KeyframeMotion.from_rig(rig, np.zeros((1, 12)), np.eye(4)[None], 29.97)
@@ -257,3 +257,103 @@ def test_kmexp_errors(tmp_path):
     (tmp_path / "m.kmexp").write_text(text)
     with pytest.raises(InterchangeError, match="7 for the root"):
         KeyframeMotion.load(tmp_path / "m.kmexp")
+
+
+def _locked_human_rig() -> Rig:
+    """The human hand's skeleton with the three kinds of joint the exporter writes and one it leaves
+    out: ball joints (all axes free), hinges (index_2 and index_3 free about x only), a two-axis
+    joint (thumb_1, z locked) and a welded joint (ring_2, every axis locked), left out while its child
+    ring_3 is still listed."""
+    human = make_hand("human").rig
+    locked = np.zeros(human.n_dofs, bool)
+    for name, axes in {"index_2": [1, 2], "index_3": [1, 2], "thumb_1": [2], "ring_2": [0, 1, 2]}.items():
+        locked[human.bone_dofs(name)[axes]] = True
+    return Rig(human.names, human.parents, human.matrix_local, human.lengths, locked=locked)
+
+
+# The order KeyframeMotionSequenceIO::parseKinematicTree lists this rig's joints (keyframeMotionSequenceIO.cpp
+# 428-439 and 627-636): pop a joint, list it unless it has no free axis (611), push its children in
+# order, so the hand's last child (thumb_1) comes out first, and ring_2 is left out but not ring_3.
+STACK_ORDER = [
+    ("forearm", 7), ("hand", 4), ("thumb_1", 2), ("thumb_2", 4), ("thumb_3", 4), ("pinky_1", 4),
+    ("pinky_2", 4), ("pinky_3", 4), ("ring_1", 4), ("ring_3", 4), ("middle_1", 4), ("middle_2", 4),
+    ("middle_3", 4), ("index_1", 4), ("index_2", 1), ("index_3", 1),
+]  # fmt: skip
+
+
+def test_kmexp_in_the_exporters_stack_order_loads_joint_by_joint(tmp_path):
+    """A file laid out as their exporter writes this rig (joints in its stack order, each joint's own
+    values in its own columns) puts every joint's values on that joint of the rig."""
+    rig = _locked_human_rig()
+    rng = np.random.default_rng(11)
+    F = 3
+    root_rotations = Rotation.random(F, random_state=12)
+    root_cm = rng.uniform(-20, 20, (F, 3))
+    balls = {n: Rotation.from_rotvec(rng.uniform(-0.6, 0.6, (F, 3))) for n, d in STACK_ORDER[1:] if d == 4}
+    angles = {"thumb_1": rng.uniform(-0.5, 0.5, (F, 2)), "index_2": rng.uniform(0, 1, (F, 1))}
+    angles["index_3"] = rng.uniform(0, 1, (F, 1))
+
+    def wxyz(rotation):  # w >= 0, as ours writes them (Maya's sign is either; the reader takes both)
+        q = rotation.as_quat()[[3, 0, 1, 2]]
+        return list(q if q[0] >= 0 else -q)
+
+    hand = []
+    for f in range(F):
+        row = wxyz(root_rotations[f]) + list(root_cm[f])
+        for name, d in STACK_ORDER[1:]:
+            row += wxyz(balls[name][f]) if d == 4 else list(angles[name][f])
+        hand.append(row)
+    export = {
+        "framerate": 120,
+        "jointNames": [n for n, _ in STACK_ORDER],
+        "jointDofs": [d for _, d in STACK_ORDER],
+        "data": [{"frame": f + 1, "object": [1, 0, 0, 0, 0, 0, 0], "hand": hand[f]} for f in range(F)],
+    }
+    (tmp_path / "theirs.kmexp").write_text(json.dumps(export))
+    theta = KeyframeMotion.load(tmp_path / "theirs.kmexp").theta(rig)
+
+    for f in range(F):
+        root = rig.pose_matrices(theta[f])[0]
+        np.testing.assert_allclose(root[:3, :3], root_rotations[f].as_matrix(), atol=1e-12)
+        np.testing.assert_allclose(root[:3, 3], root_cm[f] / 100, atol=1e-12)
+        basis = rig.basis(theta[f])
+        for name, rotation in balls.items():
+            b = rig.bone_index(name)
+            np.testing.assert_allclose(basis[b, :3, :3], rotation[f].as_matrix(), atol=1e-12, err_msg=name)
+    for name, free in {"thumb_1": [0, 1], "index_2": [0], "index_3": [0]}.items():
+        dofs = rig.bone_dofs(name)
+        np.testing.assert_allclose(theta[:, dofs[free]], angles[name], err_msg=name)
+        locked = np.setdiff1d(np.arange(3), free)
+        np.testing.assert_array_equal(
+            theta[:, dofs[locked]], np.broadcast_to(rig.rest[dofs[locked]], (F, len(locked)))
+        )
+    welded = rig.bone_dofs("ring_2")
+    np.testing.assert_array_equal(theta[:, welded], np.broadcast_to(rig.rest[welded], (F, 3)))
+
+    # ours lists the same rig's joints in the same order, with the same numbers in every column
+    ours = save_kmexp(tmp_path / "ours.kmexp", rig, theta, np.repeat(np.eye(4)[None], F, axis=0), 120)
+    written = json.loads((tmp_path / "ours.kmexp").read_text())
+    assert list(zip(written["jointNames"], written["jointDofs"], strict=True)) == STACK_ORDER
+    np.testing.assert_allclose(ours.hand, hand, atol=1e-9)
+
+
+def test_kmexp_joints_that_differ_from_the_rigs_are_named():
+    k = KeyframeMotion.load(FIXTURES / "motion.kmexp")  # root, hinge (x), ball
+    M = np.repeat(np.eye(4)[None], 3, axis=0)
+    locked = np.zeros(12, bool)
+    locked[[7, 8]] = True
+    renamed = Rig(["root", "elbow", "ball"], [-1, 0, 1], M, [0.05] * 3, locked=locked)
+    with pytest.raises(
+        InterchangeError,
+        match=r"motion\.kmexp: the rig's joints 'elbow' are not in the export; "
+        r"the export's joints 'hinge' are not on the rig",
+    ):
+        k.theta(renamed)
+    welded = locked.copy()
+    welded[9:] = True
+    with pytest.raises(InterchangeError, match=r"'ball' \(every axis locked on the rig\) are not on the rig"):
+        k.theta(Rig(["root", "hinge", "ball"], [-1, 0, 1], M, [0.05] * 3, locked=welded))
+    two_axes = locked.copy()
+    two_axes[11] = True
+    with pytest.raises(InterchangeError, match=r"'ball' has 4 values in the export, 2 on the rig"):
+        k.theta(Rig(["root", "hinge", "ball"], [-1, 0, 1], M, [0.05] * 3, locked=two_axes))

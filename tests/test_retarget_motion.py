@@ -6,6 +6,7 @@ import io
 import os
 import re
 import zipfile
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -72,6 +73,7 @@ def make_motion(full: bool = True, frames: int = F, seed: int = 0) -> Motion:
             source_kind="human",
             source_scale=0.8,
             source_theta=rng.normal(size=(frames, 12)),
+            first_frame=0,  # as a GRAB import numbers its frames
         )
     return Motion(
         fps=120.0,
@@ -317,6 +319,22 @@ def test_motion_select(full):
         assert info.value.field == "frame"
 
 
+def test_first_frame_is_kept_by_the_file_and_by_a_window(full, bare, tmp_path):
+    """The scene's number of frame 0 survives a save and load, is left out of the file at its default
+    (1), and a window of consecutive frames keeps the scene's numbering."""
+    assert full.first_frame == 0 and bare.first_frame == 1 and "first_frame" not in bare.to_arrays()
+    full.save(tmp_path / "m.npz")
+    assert Motion.load(tmp_path / "m.npz").first_frame == 0
+    bare.save(tmp_path / "b.npz")
+    assert Motion.load(tmp_path / "b.npz").first_frame == 1
+    assert full.select(slice(2, 4)).first_frame == 2
+    assert replace(bare, first_frame=10).select([3, 4]).first_frame == 13
+    for bad in (1.5, "1", True):
+        with pytest.raises(MotionError, match="first_frame must be a whole number") as info:
+            replace(bare, first_frame=bad)
+        assert info.value.field == "first_frame"
+
+
 # ------------------------------------------------------------------ construction errors
 
 
@@ -505,7 +523,7 @@ def test_fuzz_corrupted_bytes_give_motion_error_or_a_clean_load(saved, tmp_path_
     the only outcomes are a MotionError or a valid motion."""
     blob = bytearray(saved)
     starts = [m.start() for m in re.finditer(b"PK\x03\x04", saved)]  # zip local headers; .npy headers follow
-    assert len(starts) == 20
+    assert len(starts) == 21  # one per member of a full motion
     n_edits = data.draw(st.integers(1, 4))
     for _ in range(n_edits):
         kind = data.draw(st.sampled_from(["flip", "set", "insert", "delete", "truncate"]))
@@ -548,6 +566,7 @@ _DOCUMENTED = {  # member: (dtype kind, ndim), as the module docstring's tables 
     "object_contacts_offsets": ("i", 1), "object_contacts_faces": ("i", 1), "object_contacts_bary": ("f", 2),
     "hand_contacts_offsets": ("i", 1), "hand_contacts_faces": ("i", 1), "hand_contacts_bary": ("f", 2),
     "table": ("f", 2), "table_size": ("f", 1), "source_kind": ("U", 0), "source_theta": ("f", 2),
+    "first_frame": ("i", 0),
 }  # fmt: skip
 
 

@@ -69,6 +69,19 @@ box, and the authors replace it by hand with a box fitted to the scene (the plug
 is the origin of GRAB's mesh, not a box's centre, so no box follows from the file: the motion has no
 table. Add the box you fitted with ``dataclasses.replace(motion, table=pose, table_size=size)``.
 
+Frame numbers: the plugin keys the file's frame ``f`` at Maya time ``f`` for ``f`` = 0 … F-1
+(``MTime newFrame((double)frame, MTime::k120FPS)``, lines 257-261) and names each frame's contact set
+with that same number (``CONTACT_GROUP_PREFIX + shapeName + "_" + frame``, lines 494-495); the tools
+used afterwards in that scene name their sets by the current time too (``m_frame``, the time's value:
+``contactRaytraceContext.cpp`` lines 21 and 184-190 for the paired hand contacts,
+``contactTransferEditContext.cpp`` lines 61 and 296-298 for the transferred ones), and the contact
+exporter writes each set's number as its ``"frame"`` (``contactSequenceIO.cpp`` lines
+54-74). So the contact files of a GRAB scene number its frames from 0, not from the 1 of a fresh Maya
+timeline: the loaded motion says so (``first_frame`` is :data:`GRAB_FIRST_FRAME`, 0), and
+:meth:`ContactSequence.load(…, motion=motion) <solver.retarget.ContactSequence.load>` reads a contact
+file onto its frames with that numbering. (That exporter starts its loop at frame 1, line 54, so a
+GRAB scene's frame 0 never reaches a contact file.)
+
 Contacts are vertex indices, so the OBJs must keep GRAB's vertex order, as the plugin assumes too:
 ``trimesh`` keeps it unless two vertices coincide (its default processing merges them); a contact
 index past the object mesh's vertices is refused, with that hint.
@@ -90,10 +103,22 @@ from geodesics.files import write_atomically
 from .motion import Contacts, Motion, MotionError, read_npz
 from .pairing import DEFAULT_CUTOFF, pair_motion
 
-__all__ = ["GRAB_FPS", "GrabError", "grab_poses", "grab_rotations", "load_grab", "save_grab"]
+__all__ = [
+    "GRAB_FIRST_FRAME",
+    "GRAB_FPS",
+    "GrabError",
+    "grab_poses",
+    "grab_rotations",
+    "load_grab",
+    "save_grab",
+]
 
 #: GRAB's capture rate, which the export does not store.
 GRAB_FPS = 120.0
+#: The Maya frame number of a GRAB export's first frame: the plugin keys frame ``f`` at time ``f``
+#: (``GRABMotionSequenceIO.cpp`` lines 257-261), so a GRAB scene runs 0 … F-1, and so do the frame
+#: numbers of every contact file made in it. A loaded motion's ``first_frame``.
+GRAB_FIRST_FRAME = 0
 
 #: The members :func:`load_grab` reads: dtype kind ("i" integer, "f" floating point).
 MEMBERS = {
@@ -160,7 +185,8 @@ def load_grab(
     Returns
     -------
     Motion
-        No table (see the module docstring), ``source_scale`` 1. Each object contact is its vertex,
+        No table (see the module docstring), ``source_scale`` 1, ``first_frame`` 0 (the Maya frame
+        of its first frame, :data:`GRAB_FIRST_FRAME`). Each object contact is its vertex,
         as a surface point of the first face (lowest index) using it, barycentric weight 1 on it; a
         vertex listed twice in a frame is one contact.
 
@@ -188,6 +214,7 @@ def load_grab(
             hand_mesh=hand_mesh,
             hand_vertices=hand_vertices,
             object_contacts=contacts,
+            first_frame=GRAB_FIRST_FRAME,
         )
     except MotionError as err:
         raise GrabError(f"{path}: {err}", err.field) from None
@@ -356,8 +383,9 @@ def save_grab(motion: Motion, path) -> None:
     frames without contacts are left out, as the exporter does. The five ``handJoint*``/``handRoot*``
     members are left out: they describe MANO's skeleton, which a motion does not have, and the plugin
     does not read them (since commit b9c7c8e; earlier versions also needed MANO's joints in the
-    scene). Hand contacts, the table's size, the frame rate (the plugin assumes 120 fps) and the
-    source rig are not in the format. The file is written atomically (complete or untouched).
+    scene). Hand contacts, the table's size, the frame rate (the plugin assumes 120 fps), the
+    frame numbering (the plugin keys from 0 whatever the motion's ``first_frame``) and the source rig
+    are not in the format. The file is written atomically (complete or untouched).
 
     Raises
     ------

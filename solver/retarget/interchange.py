@@ -20,14 +20,23 @@ three JSON files; each is read and written here as their code does, with surface
   (quaternion, translation) and ``hand`` (the root joint's quaternion and translation, then each
   joint's values). Their exporter treats a joint free about all three axes as a ball joint (its
   rotation as a quaternion, 4 values), writes one Euler angle (radians) per free axis of the others,
-  and leaves out joints with none. Lengths are centimetres (Maya's default unit). Our writer maps a
-  :class:`~solver.Rig` the same way: the root bone's armature-space rotation and head position, a bone
-  with three unlocked rotation DOFs as the quaternion of its local rotation (``matrix_basis``), the
-  others' unlocked Euler angles in x, y, z order. → :class:`KeyframeMotion`.
+  and leaves out joints with none. Lengths are centimetres (Maya's default unit). Joints are listed
+  in the order its stack visits them (lines 428-439 and 627-636): depth first, a joint's last child
+  first, so a hand's list runs forearm, hand, thumb …, index last. Our writer maps a
+  :class:`~solver.Rig` the same way and in that order: the root bone's armature-space rotation and
+  head position, a bone with three unlocked rotation DOFs as the quaternion of its local rotation
+  (``matrix_basis``), the others' unlocked Euler angles in x, y, z order. Our reader matches joints
+  to bones by name, never by position (their plugin has no reader to follow). → :class:`KeyframeMotion`.
 
-Frames: Maya numbers them from the timeline's start (1 in their scenes); our frame ``f`` is their
-``first_frame + f``. Every reader validates what it loads and raises :class:`InterchangeError` naming
-the file, the frame and the entry; nothing is half loaded. Writers write atomically.
+Frames: Maya numbers them from the timeline's start, and their tools write Maya's numbers; our frame
+``f`` is their ``first_frame + f``. A motion says what its first frame was numbered
+(:attr:`Motion.first_frame <solver.retarget.Motion.first_frame>`): 1 by default, as a fresh Maya
+timeline starts, but 0 for a GRAB import, whose plugin keys frames 0 … F-1 (:mod:`.grab`). Give the
+motion (``ContactSequence.load(…, motion=m)``, :meth:`ContactSequence.of_motion`,
+``save_kmexp(…, first_frame=m.first_frame)``) and the numbering follows it.
+
+Every reader validates what it loads and raises :class:`InterchangeError` naming the file, the frame
+and the entry; nothing is half loaded. Writers write atomically.
 """
 
 from __future__ import annotations
@@ -47,7 +56,7 @@ from geodesics.schema import Fields
 from ..errors import SolverError
 from ..rig import Rig
 from .annotations import MarkerAnnotation
-from .motion import Contacts, MotionError
+from .motion import Contacts, Motion, MotionError
 from .transfer import keep_rows
 
 #: Metres to the centimetres of the authors' Maya scenes.
@@ -133,13 +142,30 @@ class ContactSequence:
         write_atomically(path, json.dumps({"meshName": self.mesh_name, "data": data}, indent=1))
 
     @classmethod
+    def of_motion(cls, motion: Motion, which: str, mesh_name: str | None = None) -> ContactSequence:
+        """The hand's or the object's contacts of a motion (``which``: ``"hand"`` or ``"object"``), to
+        save as the authors' file of the motion's scene: frames numbered from ``motion.first_frame``,
+        nothing omitted, mesh name ``"handShape"`` or ``"objectShape"`` (their scenes' shapes) unless
+        given. Save it with the mesh the contacts are on (``motion.hand_mesh`` or
+        ``motion.object_mesh``)."""
+        if which not in ("hand", "object"):
+            raise InterchangeError(f"which must be 'hand' or 'object', got {which!r}")
+        contacts = getattr(motion, f"{which}_contacts")
+        if contacts is None:
+            raise InterchangeError(f"the motion has no {which} contacts")
+        name = f"{which}Shape" if mesh_name is None else mesh_name
+        return cls(name, contacts, np.zeros(len(contacts), bool), motion.first_frame)
+
+    @classmethod
     def load(
         cls,
         path,
         mesh: TriMesh,
         n_frames: int | None = None,
-        first_frame: int = 1,
+        first_frame: int | None = None,
         mesh_name: str | None = None,
+        *,
+        motion: Motion | None = None,
     ) -> ContactSequence:
         """Read an authors' contact file onto ``mesh``.
 
@@ -149,19 +175,34 @@ class ContactSequence:
         mesh : TriMesh
             The mesh the file was made on, faces in the same order.
         n_frames : int, optional
-            The motion's frame count (default: up to the last frame with contacts).
-        first_frame : int
-            The file's frame number of our frame 0 (1: Maya's default timeline).
+            The motion's frame count (default: the motion's, or up to the last frame with contacts).
+        first_frame : int, optional
+            The file's frame number of our frame 0 (default: the motion's ``first_frame``, else 1,
+            Maya's default timeline start).
         mesh_name : str, optional
             When given, the file must be for this mesh name.
+        motion : Motion, optional
+            The motion the file was made for, in the scene it came from: its frame count and its
+            ``first_frame`` (0 for a GRAB import: their plugin keys frames from 0, and a contact file
+            made in that scene numbers frames as Maya does) place the file's frames on its own, so
+            that file frame ``k`` is the motion's frame ``k - motion.first_frame``.
 
         Raises
         ------
         InterchangeError
             Naming the file, frame and entry: not JSON, missing or mistyped fields, a frame before
             ``first_frame`` or beyond ``n_frames`` or repeated, an unreadable point, an omission index
-            out of range.
+            out of range; or ``n_frames``/``first_frame`` given that contradict ``motion``.
         """
+        if motion is not None:
+            for name, given, own in (
+                ("n_frames", n_frames, motion.n_frames),
+                ("first_frame", first_frame, motion.first_frame),
+            ):
+                if given is not None and given != own:
+                    raise InterchangeError(f"{path}: {name}={given} contradicts the motion's {own}")
+            n_frames, first_frame = motion.n_frames, motion.first_frame
+        first_frame = 1 if first_frame is None else first_frame
         data = _read_json(path, "contacts")
         name = data.string("meshName")
         _check_mesh_name(name, mesh_name, path)
@@ -273,12 +314,35 @@ def _pose_values(T: np.ndarray) -> np.ndarray:
     return np.concatenate([_quaternions(T[:, :3, :3]), T[:, :3, 3] * CM], axis=1)
 
 
-def _joint_layout(rig: Rig) -> tuple[list[int], list[np.ndarray]]:
-    """The joints a rig exports (bone ids) and each one's free rotation components (0, 1, 2 = x, y, z)."""
-    locked = np.asarray(rig.locked, bool)
-    bones, components = [0], [np.arange(3)]
+def _maya_order(rig: Rig) -> list[int]:
+    """The rig's bones in the order the authors' exporter visits Maya's joints.
+
+    ``KeyframeMotionSequenceIO::parseKinematicTree`` (``keyframeMotionSequenceIO.cpp`` lines 428-439
+    and 627-636) walks the skeleton with a stack: it pops a joint, lists it, then pushes its children
+    ``child(0)`` … ``child(n-1)``, so the last child is popped next and its whole subtree is listed
+    before the child before it (depth first, siblings last to first). A child's place among its
+    siblings is its order in the rig, which is Maya's child order for a skeleton built or imported in
+    that order.
+    """
+    children: list[list[int]] = [[] for _ in range(rig.n_bones)]
     for b in range(1, rig.n_bones):
-        free = np.flatnonzero(~locked[rig.bone_dofs(b)])
+        children[int(rig.parents[b])].append(b)
+    order, stack = [], [0]
+    while stack:
+        b = stack.pop()
+        order.append(b)
+        stack.extend(children[b])
+    return order
+
+
+def _joint_layout(rig: Rig) -> tuple[list[int], list[np.ndarray]]:
+    """The joints a rig exports (bone ids, in the exporter's stack order, :func:`_maya_order`) and each
+    one's free rotation components (0, 1, 2 = x, y, z). A bone with every axis locked is left out, as
+    the exporter leaves out welded joints (line 611), but its children are still visited (627-636)."""
+    locked = np.asarray(rig.locked, bool)
+    bones, components = [], []
+    for b in _maya_order(rig):
+        free = np.arange(3) if b == 0 else np.flatnonzero(~locked[rig.bone_dofs(b)])
         if free.size:
             bones.append(b)
             components.append(free)
@@ -306,6 +370,13 @@ class KeyframeMotion:
     object : (F, 7) ndarray
         The object's quaternion w x y z and translation (cm).
     hand : (F, sum(joint_dofs)) ndarray
+        Each joint's values in ``joint_names`` order, the root's first.
+    source : str or None
+        The file it was read from (named in errors); None when made by :meth:`from_rig`.
+
+    Joints are listed as the authors' exporter lists them, depth first from a stack with a joint's
+    last child first (:func:`_maya_order`); :meth:`from_rig` writes that order too, so our export of a
+    rig lists its joints as theirs of the same rig would, and :meth:`theta` matches joints by name.
     """
 
     framerate: int
@@ -315,6 +386,7 @@ class KeyframeMotion:
     frames: np.ndarray
     object: np.ndarray
     hand: np.ndarray
+    source: str | None = None
 
     @classmethod
     def from_rig(
@@ -358,27 +430,59 @@ class KeyframeMotion:
 
     def theta(self, rig: Rig, default=None) -> np.ndarray:
         """(F, d) the rig's DOFs of every frame: the inverse of :meth:`from_rig`. Values the file does
-        not hold (locked axes) come from ``default`` (d,), the rig's rest pose if not given."""
+        not hold (locked axes) come from ``default`` (d,), the rig's rest pose if not given.
+
+        Joints are matched to the rig's bones by name, in whatever order the file lists them: the
+        authors' exporter lists them in its stack order (:func:`_maya_order`), not the rig's. Their
+        tools have no reader to follow here (the plugin is export only, ``haveReadMethod`` returns
+        false, line 249), and a name is what identifies a joint in their schema (``jointNames``,
+        "name_of_joint_0_according_to_URDF" in their README), so a position never decides.
+
+        Raises
+        ------
+        InterchangeError
+            Naming the file and the joints: the rig's joints the export lacks, the export's joints
+            the rig lacks (or has with every axis locked), and joints whose value counts differ
+            (e.g. a ball joint, 4 values, where the rig frees one axis).
+        """
         bones, components = _joint_layout(rig)
-        names = tuple(rig.names[b] for b in bones)
-        if names != self.joint_names or tuple(_joint_dofs(components)) != self.joint_dofs:
-            raise InterchangeError(
-                f"the export's joints ({len(self.joint_names)}: {', '.join(self.joint_names[:4])}, …) are "
-                f"not those of the rig ({len(names)}: {', '.join(names[:4])}, …), or carry other DOFs"
-            )
-        start = np.concatenate([[0], np.cumsum(self.joint_dofs)])
+        names = [rig.names[b] for b in bones]
+        where = f"{self.source}: " if self.source else ""
+        missing = [n for n in names if n not in self.joint_names]
+        extra = [n for n in self.joint_names if n not in names]
+        if missing or extra:
+            parts = []
+            if missing:
+                parts.append(f"the rig's joints {', '.join(map(repr, missing))} are not in the export")
+            if extra:
+                locked = " (every axis locked on the rig)"
+                listed = ", ".join(repr(n) + (locked if n in rig.names else "") for n in extra)
+                parts.append(f"the export's joints {listed} are not on the rig")
+            raise InterchangeError(f"{where}{'; '.join(parts)}")
+        expected = dict(zip(names, _joint_dofs(components), strict=True))
+        other = [
+            f"{n!r} has {d} values in the export, {expected[n]} on the rig"
+            for n, d in zip(self.joint_names, self.joint_dofs, strict=True)
+            if d != expected[n]
+        ]
+        if other:
+            raise InterchangeError(f"{where}joints carry other DOFs than the rig's: {'; '.join(other)}")
+        ends = np.cumsum(self.joint_dofs).tolist()
+        column = {n: (e - d, e) for n, d, e in zip(self.joint_names, self.joint_dofs, ends, strict=True)}
         default = rig.rest if default is None else rig.check_theta(default, "default")
         F = len(self.frames)
         basis = np.repeat(rig.basis(default)[None], F, axis=0)
-        root = _rigid(self.hand[:, 0:4], self.hand[:, 4:7])
+        a, b = column[names[0]]
+        root = _rigid(self.hand[:, a : a + 4], self.hand[:, a + 4 : b])
         basis[:, 0] = np.linalg.inv(rig.matrix_local[0]) @ root
         partial = []
-        for j, (b, c) in enumerate(zip(bones[1:], components[1:], strict=True), start=1):
-            values = self.hand[:, start[j] : start[j + 1]]
+        for name, bone, c in zip(names[1:], bones[1:], components[1:], strict=True):
+            a, b = column[name]
+            values = self.hand[:, a:b]
             if c.size == 3:
-                basis[:, b, :3, :3] = _matrices(values)
+                basis[:, bone, :3, :3] = _matrices(values)
             else:
-                partial.append((b, c, values))
+                partial.append((bone, c, values))
         theta = np.empty((F, rig.n_dofs))
         previous = default
         for f in range(F):  # each frame's Euler angles chosen nearest the last's: no 2π jumps
@@ -441,7 +545,7 @@ class KeyframeMotion:
             raise InterchangeError(f"{where} has no frames")
         return cls(
             framerate, tuple(names), tuple(dofs), table, np.array(frames, np.int64),
-            np.array(obj), np.array(hand),
+            np.array(obj), np.array(hand), where,
         )  # fmt: skip
 
 
@@ -453,10 +557,12 @@ def _poses(rig: Rig, theta) -> np.ndarray:
 
 
 def save_kmexp(
-    path, rig: Rig, theta, object_poses, fps: float, table=None, table_size=None
+    path, rig: Rig, theta, object_poses, fps: float, table=None, table_size=None, first_frame: int = 1
 ) -> KeyframeMotion:
-    """Write a rig's motion as an authors' ``.kmexp`` (see :meth:`KeyframeMotion.from_rig`); returns it."""
-    export = KeyframeMotion.from_rig(rig, theta, object_poses, fps, table, table_size)
+    """Write a rig's motion as an authors' ``.kmexp`` (see :meth:`KeyframeMotion.from_rig`); returns it.
+    ``first_frame`` is the Maya frame number of frame 0, the motion's own (``Motion.first_frame``) for
+    a motion from their scenes: their exporter numbers frames from the timeline's start (line 165)."""
+    export = KeyframeMotion.from_rig(rig, theta, object_poses, fps, table, table_size, first_frame)
     export.save(path)
     return export
 

@@ -56,6 +56,9 @@ member                       dtype    shape       meaning (units)
 ``source_theta``             float64  (F, d)      ground-truth DOF curves in :class:`solver.Rig`
                                                   order (root location in metres, Euler angles and
                                                   bone rotations in radians)
+``first_frame``              int64    ()          the number frame 0 has in the scene the motion
+                                                  came from (:attr:`Motion.first_frame`; absent:
+                                                  1; 0 for a GRAB import)
 ===========================  =======  ==========  ==================================================
 
 Floating members may be stored as any float dtype and integer members as any integer dtype; they are
@@ -117,6 +120,7 @@ _OPTIONAL = {
     "table_size": ("f", (3,)),
     "source_kind": ("U", ()),
     "source_theta": ("f", (None, None)),
+    "first_frame": ("i", ()),
 }
 _KINDS = {"f": "floating point", "i": "integer", "U": "unicode string"}
 
@@ -338,6 +342,13 @@ class Motion:
         Its scale (1.0 = life size).
     source_theta : (F, d) ndarray or None
         Ground-truth DOF curves when the source is a procedural rig.
+    first_frame : int
+        The number frame 0 has in the scene the motion came from, where the reader that made the motion
+        knows it (1 otherwise, the default start of Maya's and Blender's timelines). Files made in that
+        scene number frames that way: the retargeting authors' contact files (:mod:`.interchange`)
+        carry Maya's frame numbers, which are 0, 1, … in a scene their GRAB import keyed
+        (:func:`~solver.retarget.load_grab` sets 0). Readers of such files take it from the motion, so
+        that the file's frames land on the motion's own.
 
     Arrays are copied to read-only float64 / int64 on construction; invalid input raises
     :class:`MotionError` naming the field.
@@ -355,6 +366,7 @@ class Motion:
     source_kind: str | None = None
     source_scale: float = 1.0
     source_theta: np.ndarray | None = None
+    first_frame: int = 1
 
     def __post_init__(self):
         fps = self.fps
@@ -427,6 +439,12 @@ class Motion:
         if self.source_theta is not None:
             theta = _float_array(self.source_theta, "source_theta", (F, None))
             object.__setattr__(self, "source_theta", theta)
+        first = self.first_frame
+        if isinstance(first, np.ndarray) and first.ndim == 0:
+            first = first.item()
+        if isinstance(first, bool) or not isinstance(first, (int, np.integer)):
+            raise MotionError(f"first_frame must be a whole number, got {first!r}", "first_frame")
+        object.__setattr__(self, "first_frame", int(first))
 
     # ------------------------------------------------------------------ access
 
@@ -448,7 +466,8 @@ class Motion:
 
     def select(self, frames) -> Motion:
         """The motion restricted to the given frames ((k,) indices, an (F,) boolean mask or a slice), in that
-        order."""
+        order. Its ``first_frame`` is the number of the first frame selected, so a window of consecutive
+        frames keeps the scene's numbering (other selections have no single numbering to keep)."""
         ids = _frame_ids(frames, self.n_frames)
         if ids.size == 0:
             raise MotionError("select needs at least one frame", "frame")
@@ -465,6 +484,7 @@ class Motion:
             source_kind=self.source_kind,
             source_scale=self.source_scale,
             source_theta=None if self.source_theta is None else self.source_theta[ids],
+            first_frame=self.first_frame + int(ids[0]),
         )
 
     # ------------------------------------------------------------------ file
@@ -498,6 +518,8 @@ class Motion:
             out["source_kind"] = np.array(self.source_kind)
         if self.source_theta is not None:
             out["source_theta"] = self.source_theta
+        if self.first_frame != 1:
+            out["first_frame"] = np.array(self.first_frame, np.int64)
         return out
 
     def save(self, path, compressed: bool = False) -> None:
@@ -590,6 +612,7 @@ class Motion:
                 source_kind=None if "source_kind" not in arrays else str(arrays["source_kind"]),
                 source_scale=float(arrays["source_scale"]),
                 source_theta=arrays.get("source_theta"),
+                first_frame=int(arrays.get("first_frame", 1)),
             )
         except MotionError as err:
             field = (err.field or "file").replace(".", "_")

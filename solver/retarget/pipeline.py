@@ -702,9 +702,11 @@ def save_result(
 
     ``motion.npz`` (the target hand's motion, :class:`.motion.Motion` format), ``motion.kmexp`` (the
     same for the authors' tools, :mod:`.interchange`; when the target hand's ``rig`` is given and the
-    frame rate is a whole number, as that format stores it), ``curves.npz`` (the final, estimated and
-    refined DOF curves, the valid mask, the spline's knots and control points, the per-frame distances
-    and intersection volumes, each baseline's final curves as ``<name>_theta``),
+    frame rate is a whole number, as that format stores it; frames numbered from the motion's
+    ``first_frame``, as the scene it came from numbers them: 0 for a GRAB import), ``curves.npz``
+    (the final, estimated and refined DOF curves, the valid mask, the spline's knots and control
+    points, the per-frame distances and intersection volumes, each baseline's final curves as
+    ``<name>_theta``),
     ``summary.json`` (:meth:`Retarget.summary`), ``table1.txt`` (the baseline comparison, when the
     baselines ran), ``annotation.json`` (the hand pair's annotation, when given) and ``metrics.png`` (the
     §4.2 plots, under ``title``: :func:`.metrics.plot_metrics`'s default when None).
@@ -722,7 +724,9 @@ def save_result(
     if rig is not None and float(result.motion.fps).is_integer():
         paths["kmexp"] = folder / "motion.kmexp"
         m = result.motion
-        save_kmexp(paths["kmexp"], rig, result.theta, m.object_poses, m.fps, m.table, m.table_size)
+        save_kmexp(
+            paths["kmexp"], rig, result.theta, m.object_poses, m.fps, m.table, m.table_size, m.first_frame
+        )
     curves = {
         "theta": result.theta,
         "estimate": result.estimate,
