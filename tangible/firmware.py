@@ -21,7 +21,8 @@ says where):
 * Every 1000 ms a piece queues its init record (and a splitter one splitter record per output). A
   splitter not polled, or hearing no child, for 250 ms stops feeding its watchdog and restarts.
 * Commands change the piece's flash (zero offsets, polarity, id, type, colour, splitter geometry) and
-  its LEDs; a command that writes flash makes the piece deaf for the page erase.
+  its LEDs; a command that writes flash makes the piece deaf for the page erase. ``'x'`` (polarity)
+  clears the readings before it falls through into ``'z'``, so it sets the zero offsets to 0.
 
 A :class:`Controller` is one microcontroller (a joint is two: its 0x74 and 0x84 halves); its parent is
 another controller or the :class:`Host`. It runs inside its simulator, which schedules its events
@@ -401,7 +402,11 @@ class Controller:
             pass  # reprogramming the 2-D sensor: not modelled
         elif code in "xz":
             if code == "x":
-                f.polarity = c[6]  # and on into 'z': the firmware has no break here
+                # utility.c 198-201: 'x' stores the polarity and runs part_init, which clears angles[0..3]
+                # (lines 512-515), then falls through (no break) into 'z' (lines 202-208), which copies
+                # those cleared angles: the zero offsets become 0, 0, 0, 0, not the current readings.
+                f.polarity = c[6]
+                self._part_init(t)
             f.zero = list(self.angles)
             flash = True
         elif code == "g":
