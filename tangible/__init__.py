@@ -7,7 +7,8 @@ Device side:
   downlink :class:`~tangible.protocol.Command` s, CRC-8, the streaming
   :class:`~tangible.protocol.ReplyParser`.
 * :class:`SerialReader` — a background thread polling the device over pyserial and publishing immutable
-  :class:`DeviceState` snapshots; :class:`DeviceTopology` — the parent→children table behind it.
+  :class:`DeviceState` snapshots, re-sending a command until it is acknowledged (:class:`Delivery`);
+  :class:`DeviceTopology` — the parent→children table behind it.
 * :class:`Simulator` — the firmware's state machines for a device tree, on a simulated clock, stepped by
   hand or in real time behind a pty, with faults on the host link; :mod:`tangible.firmware` is one
   controller's state machine, :mod:`tangible.motions` the joint motions that drive its sensors.
@@ -36,13 +37,13 @@ import logging
 from . import protocol
 from .assembly import colour_name, instructions_text
 from .device import SPLITTERS, DeviceTree, Piece, SplitterType
-from .errors import DeviceError, ProtocolError, RecordError, RigError, TangibleError
+from .errors import CommandError, DeviceError, ProtocolError, RecordError, RigError, TangibleError
 from .joint import joint_angles, joint_rotation
 from .motions import KeyframeMotion, RandomMotion
 from .posespace import PoseSpace
 from .protocol import Command
 from .puppet import CHANNELS, JointBinding, Puppet, PuppetPose, ScalarBinding, match_device
-from .reader import SerialReader, list_ports
+from .reader import Delivery, SerialReader, list_ports
 from .reduction import Kit, Reduction, reduce
 from .rigreducer import read_reduction, read_rig, write_reduction, write_rig
 from .simulator import Faults, Simulator
@@ -57,7 +58,9 @@ __all__ = [
     "CHANNELS",
     "SPLITTERS",
     "Command",
+    "CommandError",
     "ComponentState",
+    "Delivery",
     "DeviceError",
     "DeviceState",
     "DeviceTopology",

@@ -46,6 +46,26 @@ class DeviceError(TangibleError, RuntimeError):
     to unplug a port it does not own, or a connected device whose shape differs from the planned one."""
 
 
+class CommandError(DeviceError):
+    """A downlink command was not acknowledged: the reader sent it its number of attempts, waiting its ack
+    timeout after each, and no acknowledgement came (or the reader was closed first).
+
+    Raised by :meth:`tangible.reader.Delivery.wait`; the reader thread itself never raises it (it logs the
+    failure and counts it in ``DeviceState.link``).
+
+    Attributes
+    ----------
+    command : tangible.protocol.Command
+    attempts : int
+        How many times it was sent.
+    """
+
+    def __init__(self, message: str, *, command, attempts: int):
+        super().__init__(message)
+        self.command = command
+        self.attempts = attempts
+
+
 class RigError(TangibleError, ValueError):
     """A skeleton, its sample poses, a kit or a binding is not valid input.
 

@@ -21,7 +21,8 @@ says where):
 * Every 1000 ms a piece queues its init record (and a splitter one splitter record per output). A
   splitter not polled, or hearing no child, for 250 ms stops feeding its watchdog and restarts.
 * Commands change the piece's flash (zero offsets, polarity, id, type, colour, splitter geometry) and
-  its LEDs; a command that writes flash makes the piece deaf for the page erase.
+  its LEDs; a command that writes flash makes the piece deaf for the page erase. ``'x'`` (polarity)
+  clears the readings before it falls through into ``'z'``, so it sets the zero offsets to 0.
 
 A :class:`Controller` is one microcontroller (a joint is two: its 0x74 and 0x84 halves); its parent is
 another controller or the :class:`Host`. It runs inside its simulator, which schedules its events
@@ -95,7 +96,9 @@ class FirmwareState:
 
     ``leds`` is ``(red, green, blue)`` as last set; the firmware's main loop also turns blue off on every
     iteration once the piece has been polled, and toggles red every 250 ms (not modelled). ``queued``
-    counts the records waiting to go up, ``commands`` the commands waiting to go down.
+    counts the records waiting to go up, ``commands`` the commands waiting to go down. ``restarts``
+    counts its watchdog resets (a splitter's, ``main.c`` lines 298–314); after each, as after power-on,
+    it takes the next poll for the direction and drops it with its command (``bus.c`` lines 35–84).
     """
 
     id: int
@@ -110,6 +113,7 @@ class FirmwareState:
     polled: bool
     queued: int
     commands: int
+    restarts: int = 0
 
 
 # ---------------------------------------------------------------------------- one controller
@@ -169,6 +173,7 @@ class Controller:
         self.q_out: list[bytes] = []
         self.leds = (True, False, True)
         self.token = 0  # numbers this controller's polls across restarts, so stale answers are ignored
+        self.restarts = 0
 
     # ------------------------------------------------------------ power
 
@@ -182,6 +187,8 @@ class Controller:
             self.sim._at(t + _BOOT, self, self._start)
 
     def _reboot(self, t: float) -> None:
+        """The window watchdog resets the controller: it starts again with its direction unknown."""
+        self.restarts += 1
         self.epoch += 1
         self.alive = False
         self.sim._at(t + _BOOT, self, self._start)
@@ -322,7 +329,9 @@ class Controller:
             return
         self.last_poll = t
         if not self.direction:
-            if poll[0] == POLL:  # the first 'R' tells which UART is up: no answer yet
+            # bus.c 35-84: the first 'R' after a start (power-on or watchdog) tells which UART is up and
+            # returns before receivedUP is set: no answer, and the command in it is never looked at.
+            if poll[0] == POLL:
                 self.direction = True
                 self.last_up = t
                 self.leds = (self.leds[0], self.leds[1], False)
@@ -401,7 +410,11 @@ class Controller:
             pass  # reprogramming the 2-D sensor: not modelled
         elif code in "xz":
             if code == "x":
-                f.polarity = c[6]  # and on into 'z': the firmware has no break here
+                # utility.c 198-201: 'x' stores the polarity and runs part_init, which clears angles[0..3]
+                # (lines 512-515), then falls through (no break) into 'z' (lines 202-208), which copies
+                # those cleared angles: the zero offsets become 0, 0, 0, 0, not the current readings.
+                f.polarity = c[6]
+                self._part_init(t)
             f.zero = list(self.angles)
             flash = True
         elif code == "g":
@@ -529,6 +542,7 @@ class Controller:
             polled=self.direction,
             queued=len(self.q_in),
             commands=len(self.q_out),
+            restarts=self.restarts,
         )
 
 

@@ -548,8 +548,10 @@ class Command:
 
     @classmethod
     def polarity(cls, inverted: bool, target: int | None = None) -> Command:
-        """``'x'``: mirror both bend readings (p1 = 1) or not (0). The firmware falls through into ``'z'``:
-        the piece is zeroed too, with readings taken under the old polarity, so zero again after it."""
+        """``'x'``: mirror both bend readings (p1 = 1) or not (0). The firmware (``utility.c`` lines
+        198–208) stores the polarity, runs ``part_init`` (which clears the readings, lines 512–515) and
+        falls through into ``'z'``, which copies those cleared readings: the zero offsets become 0, so the
+        piece then sends its raw readings. Send :meth:`zero` after it to zero at the current pose."""
         return cls._make("x", (int(bool(inverted)), 0, 0), target)
 
     @classmethod

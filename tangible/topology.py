@@ -58,9 +58,11 @@ class LinkStats:
     ``corrupt`` damaged spots (a record failing its checks, or bytes a dropped, inserted or cut-off byte
     made unreadable) and ``skipped`` bytes not in any valid record; replies ``short`` of 216 bytes,
     ``oversize`` (longer) and ``missing`` (no reply to a poll); ``polls`` written, ``echoes`` of them
-    heard back and skipped, ``commands`` sent; ``reconnects`` successful re-openings of the port after it
-    failed; ``error`` the last port error in words ("" when none). See
-    :class:`tangible.protocol.ParserStats`.
+    heard back and skipped, ``commands`` sent (each counted once), ``resent`` the times one was sent again
+    for want of an acknowledgement and ``unacknowledged`` those given up after the reader's attempts, with
+    ``command_error`` the last in words ("" when none); ``reconnects`` successful re-openings of the port
+    after it failed; ``error`` the last port error in words ("" when none). See
+    :class:`tangible.protocol.ParserStats` and :class:`tangible.reader.SerialReader`.
     """
 
     bytes: int = 0
@@ -74,6 +76,9 @@ class LinkStats:
     polls: int = 0
     echoes: int = 0
     commands: int = 0
+    resent: int = 0
+    unacknowledged: int = 0
+    command_error: str = ""
     reconnects: int = 0
     error: str = ""
 

@@ -737,7 +737,8 @@ def test_zero_on_the_device_and_identify_blink(tmp_path):
 
         # The blink is timed by the session's clock: here one the script moves on by hand, a half period at
         # a time, with an update each (what the live timer does). The device shows each LED command the
-        # session sends; one lost on the way (see above) is sent again after 50 polls without it.
+        # session sends; the reader sends one lost on the way (see above) again when no ack comes, and the
+        # script does too after 50 polls without it (a busy machine may lose all the reader's attempts).
         class Clock:
             now = 100.0
             @classmethod
@@ -788,3 +789,41 @@ def test_zero_on_the_device_and_identify_blink(tmp_path):
     assert out["sent"] == [on, off] * 4 + [off, off]
     assert out["greens"] == [True, False] * 4 + [False, False] and not any(out["others"])
     print(f"\nblinked; {out['resent']} lost LED commands sent again")
+
+
+def test_an_unacknowledged_command_is_counted_and_the_session_stays_live(tmp_path):
+    """A command nobody acknowledges (for an id no piece has: the firmware floods it down the tree and no
+    piece runs it, ``main.c`` lines 461-476) is sent the reader's number of times and given up; the live
+    session does not fail on it: it goes on driving the bone, and its status line counts the command."""
+    out = run_blender(
+        """
+        import functools
+        from tangible import Command, CommandError, SerialReader
+        device_session.SerialReader = functools.partial(SerialReader, ack_timeout=0.05, attempts=2)
+        bind_bones({J + 11: "hand"})
+        simulator = Simulator(DEVICE, motion=RandomMotion(4, seed=7), seed=3).start()
+        settings.port = simulator.path
+        bpy.ops.contact_edit.device_connect()
+        reader = session().reader
+        delivery = reader.send(Command.led(red=False, green=True, blue=False, target=J + 99))
+        try:
+            delivery.wait(WAIT)
+            error = ""
+        except CommandError as err:
+            error = str(err)
+        turned = update_until_turned([J + 11], ["hand"], 1.0)["hand"]
+        level = session().level
+        status = settings.status
+        link = session().state.link
+        bpy.ops.contact_edit.device_stop()
+        simulator.close()
+        result(dict(error=error, attempts=delivery.attempts, turned=turned, level=level, status=status,
+                    unacknowledged=link.unacknowledged, resent=link.resent))
+        """,
+        tmp_path,
+        setup=SETUP,
+    )
+    assert "got no acknowledgement after 2 attempts" in out["error"] and out["attempts"] == 2
+    assert out["unacknowledged"] == 1 and out["resent"] == 1
+    assert out["turned"] > 1.0 and out["level"] == "INFO"
+    assert "1 command to the device unacknowledged" in out["status"], out["status"]

@@ -33,15 +33,15 @@ from tangible import (
     list_ports,
 )
 from tangible import rotations as rot
-from tangible.errors import DeviceError, ProtocolError
-from tangible.protocol import MIN_ID, AckRecord, DataRecord, encode_record
+from tangible.errors import CommandError, DeviceError, ProtocolError
+from tangible.protocol import EMPTY, MIN_ID, AckRecord, DataRecord, encode_record
 
 HALF_DEGREE = np.radians(0.5)
 J = MIN_ID
 #: Longest wait for a state of the reader; a wait ends as soon as its state holds, so this only bounds how
 #: long a broken build hangs (on an idle machine every state here comes within a second or two).
 WAIT = 60.0
-#: Polls a command gets to be acknowledged before it is sent again (the device takes a few).
+#: Times the reader sends a command before it gives up, where a busy machine may lose many.
 RESEND = 50
 
 
@@ -266,26 +266,6 @@ def test_the_reader_survives_unplugging_and_replugging_the_port(tmp_path, simula
             until(reader, lambda s, k=k: s.connected and s.link.reconnects == k, f"reconnect {k}")
 
 
-def deliver(reader, commands, done, what: str):
-    """Send ``commands()`` until ``done(state)`` holds; returns that state and how many commands went.
-
-    The firmware drops a command now and then: a piece ignores a poll, and the command in it, while it
-    writes its flash or still answers the last poll (which is what a simulator in this busy process sees
-    when it reads two polls at once). The reader does not send again by itself: so after each
-    :data:`RESEND` polls without ``done``, ``commands()`` says what to send again (sending a command a
-    second time does no harm here)."""
-    sent, give_up = 0, time.monotonic() + WAIT
-    while True:
-        polls = reader.state().link.polls
-        for command in commands():
-            reader.send(command)
-            sent += 1
-        state = until(reader, lambda s, polls=polls: done(s) or s.link.polls >= polls + RESEND, what)
-        if done(state):
-            return state, sent
-        assert time.monotonic() < give_up, f"sent {sent} commands in {WAIT:g} s, and still no {what}"
-
-
 def test_downlink_commands_reach_the_right_piece(simulator):
     dev = device(2)
     still = joint_rotation(np.tile([0.1, 0.3, -0.2, 0.5], (len(dev.joints), 1)))
@@ -297,21 +277,21 @@ def test_downlink_commands_reach_the_right_piece(simulator):
         if isinstance(record, AckRecord):
             acks.append(record)
 
-    with SerialReader(sim.path, observer=observe) as reader:
+    # The firmware drops a command now and then: a piece ignores a poll, and the command in it, while it
+    # writes its flash or still answers the last poll (which is what a simulator in this busy process sees
+    # when it reads two polls at once). The reader sends it again; on a busy machine, many times.
+    with SerialReader(sim.path, observer=observe, attempts=RESEND) as reader:
         sim.start()
         until(reader, lambda s: len(s.attached) == len(dev), "the whole device")
-        # Two commands queued at once go out one per poll, and the target acknowledges each.
+        # Two commands queued at once go out in order, each once the one before is acknowledged.
         both = [Command.led(red=False, green=True, blue=False, target=target), Command.zero(target=target)]
-
-        def unacknowledged():
-            done = {a.command for a in acks if a.creator == target}
-            return [c for c in both if c.encode()[:8] not in done]
-
-        acked, sent = deliver(
-            reader, unacknowledged, lambda s: not unacknowledged(), "acknowledgement of both"
-        )
-        assert sent >= 2 and acked.components[target].acks >= 2
-        until(reader, lambda s: s.link.commands == sent, f"the reader to count the {sent} commands sent")
+        deliveries = [reader.send(c) for c in both]
+        for d in deliveries:
+            ack = d.wait(WAIT)
+            assert ack is not None and ack.creator == target and d.status == "acknowledged"
+        acked = reader.state()
+        assert acked.components[target].acks >= 2
+        assert acked.link.commands == 2 and acked.link.resent == sum(d.attempts - 1 for d in deliveries)
         # Only the target executed them (each perhaps more than once).
         assert {(a.creator, a.command) for a in acks} == {(target, c.encode()[:8]) for c in both}
         assert sim.firmware(target).leds[1] and not any(
@@ -321,14 +301,111 @@ def test_downlink_commands_reach_the_right_piece(simulator):
             reader, lambda s: np.abs(s.components[target].angles[:3]).max() < 2e-3, "zero readings"
         )
         assert np.abs(zeroed.components[J + 20].angles[1:3]).min() > 0.1  # the others are not
-        # Direct: the piece plugged into the host takes the id.
-        deliver(
-            reader,
-            lambda: [Command.set_id(J + 99)],
-            lambda s: J + 99 in s.attached and s.children.get(J + 99) == (J + 2,),
-            "new id",
-        )
+        # Direct: the piece plugged into the host takes the id (and acknowledges under it).
+        ack = reader.send(Command.set_id(J + 99)).wait(WAIT)
+        assert ack is not None and ack.creator == J + 99
+        until(reader, lambda s: J + 99 in s.attached and s.children.get(J + 99) == (J + 2,), "new id")
         assert sim.firmware(J + 1).id == J + 99
+
+
+class SteppedPort:
+    """A pyserial-like port onto a simulator stepped by hand from the reader's own thread: a read that
+    finds no byte waiting steps the simulated clock by ``dt``. A reader given this port and
+    ``clock=lambda: sim.time`` runs on the simulated clock: deterministic whatever the machine's load, and
+    faster than real time. Before the first poll that carries a command, ``stall`` seconds pass on the
+    simulated clock with nothing written (the host held up, as a busy machine or a USB hiccup does)."""
+
+    def __init__(self, sim: Simulator, dt: float = 0.001, stall: float = 0.0):
+        self.sim, self.dt, self.stall = sim, dt, stall
+        self.buffer = bytearray()
+        self.command_polls = []  # simulated times at which polls carrying a command were written
+
+    @property
+    def in_waiting(self) -> int:
+        return len(self.buffer)
+
+    def read(self, size: int = 1) -> bytes:
+        if not self.buffer:
+            self.buffer += self.sim.step(self.dt)
+        out = bytes(self.buffer[:size])
+        del self.buffer[:size]
+        return out
+
+    def write(self, data: bytes) -> int:
+        if data[1] != EMPTY:
+            if self.stall:
+                self.buffer += self.sim.step(self.stall)
+                self.stall = 0.0
+            self.command_polls.append(self.sim.time)
+        self.sim.write(data)
+        return len(data)
+
+    def close(self) -> None:
+        pass
+
+
+def stepped_reader(sim: Simulator, port: SteppedPort, **kwargs) -> SerialReader:
+    return SerialReader("stepped://", open_port=lambda url: port, clock=lambda: sim.time, **kwargs)
+
+
+@pytest.mark.parametrize("attempts", [3, 1])
+def test_a_command_lost_to_a_watchdog_restart_is_sent_again(attempts):
+    """A splitter not polled for 250 ms stops feeding its window watchdog and restarts (``main.c`` lines
+    298-314); the first poll after a start only sets its direction (``bus.c`` lines 35-84 return before
+    ``receivedUP``): no reply, and the command in it is lost. The reader sends it again when no ack comes
+    within ``ack_timeout``; with one attempt the command vanishes, and the delivery says so."""
+    root = J + 1
+    dev = DeviceTree([Piece(root, "splitter", splitter=SPLITTERS["T"]), Piece(J + 2, "joint", root, 0)])
+    sim = Simulator(dev, seed=4)
+    port = SteppedPort(sim, stall=0.4)  # > 250 ms + the watchdog's 65 ms + the boot
+    with stepped_reader(sim, port, ack_timeout=0.2, attempts=attempts) as reader:
+        until(reader, lambda s: set(s.attached) == {root, J + 2}, "the device")
+        assert sim.firmware(root).restarts == 0
+        delivery = reader.send(Command.led(red=False, green=True, blue=False, target=root))
+        if attempts == 1:
+            with pytest.raises(CommandError, match="no acknowledgement after 1 attempt") as err:
+                delivery.wait(WAIT)
+            assert err.value.attempts == 1 and delivery.status == "failed"
+            state = reader.state()
+            assert (state.link.unacknowledged, state.link.resent) == (1, 0)
+            assert not sim.firmware(root).leds[1]  # the firmware never ran it
+        else:
+            ack = delivery.wait(WAIT)
+            assert ack is not None and ack.creator == root and ack.code == "l"
+            assert delivery.status == "acknowledged" and delivery.attempts == 2
+            state = reader.state()
+            assert (state.link.commands, state.link.resent, state.link.unacknowledged) == (1, 1, 0)
+            assert sim.firmware(root).leds[1]
+            # Sent again one ack timeout (and at most one poll more) after the lost one.
+            assert 0.2 <= port.command_polls[1] - port.command_polls[0] < 0.2 + 0.03
+        assert sim.firmware(root).restarts == 1  # the stall did restart the splitter
+        assert state.link.missing >= 1  # and the poll with the command got no reply
+
+
+def test_a_command_nobody_acknowledges_fails_after_the_attempts_in_bounded_time():
+    """A command for an id no piece has is flooded down the tree and acknowledged by nobody (``main.c``
+    lines 461-476): the reader sends it ``attempts`` times, ``ack_timeout`` apart, then reports it
+    failed (the delivery, the link counters, the log) and goes on with the next command."""
+    dev = DeviceTree([Piece(J + 1, "joint"), Piece(J + 2, "joint", J + 1)])
+    sim = Simulator(dev, seed=5)
+    port = SteppedPort(sim)
+    with stepped_reader(sim, port, ack_timeout=0.1, attempts=3) as reader:
+        until(reader, lambda s: set(s.attached) == {J + 1, J + 2}, "the device")
+        nobody = reader.send(Command.led(red=False, green=True, blue=False, target=J + 99))
+        after = reader.send(Command.led(red=False, green=True, blue=False, target=J + 2))
+        with pytest.raises(CommandError, match=f"piece {J + 99:#x} got no acknowledgement after 3"):
+            nobody.wait(WAIT)
+        assert nobody.attempts == 3
+        assert after.wait(WAIT) is not None and after.attempts == 1  # the next command goes on
+        # Bounded: three sends, each an ack timeout (and less than a poll more) after the last, then the
+        # next command as soon as the third's ack timeout has passed.
+        assert len(port.command_polls) == 4
+        gaps = np.diff(port.command_polls)
+        assert ((gaps >= 0.1) & (gaps < 0.1 + 0.03)).all(), gaps
+        link = reader.state().link
+        assert (link.commands, link.resent, link.unacknowledged) == (2, 2, 1)
+        assert "no acknowledgement" in link.command_error and link.error == ""
+    assert sim.firmware(J + 2).leds[1]
 
 
 def test_a_loop_url_hears_only_its_own_polls():

@@ -321,13 +321,23 @@ def test_broadcast_and_polarity():
     host.run(0.5)
     before = host.state().joint_angles(sim.device.joints)
     np.testing.assert_allclose(before, joint_angles(pose), atol=2e-3)
-    factory = {j: sim.firmware(j).zero for j in sim.device.joints}
+    factory = np.array([sim.firmware(j).zero for j in sim.device.joints])
     host.run(1.0, commands=[(0.6, Command.polarity(True, target=BROADCAST_ID))])
-    # 'x' falls through into 'z': zeroed with the readings of the old polarity, so the bends now read
-    # the mirrored reading minus the unmirrored one, and a second 'z' zeroes them.
-    assert all(sim.firmware(j).polarity == 1 and sim.firmware(j).zero != factory[j] for j in factory)
+    # utility.c 198-201: 'x' stores the polarity and calls part_init, which clears angles[0..3] (lines
+    # 512-515), then falls through into 'z' (202-208), which copies the cleared angles: every zero offset
+    # is 0, not the current reading (the factory zero is the sensors' mounting offset, never all 0).
+    assert all(sim.firmware(j).polarity == 1 for j in sim.device.joints)
+    assert all(sim.firmware(j).zero == (0, 0, 0, 0) for j in sim.device.joints)
+    assert (factory != 0).all()
+    # So the joints now send their raw readings (update_sensor_messages, lines 611-622): the twists as
+    # read, the bends mirrored (0x3FFF - a); the host's angles are those steps wrapped to (-pi, pi].
+    step = 2 * np.pi / 16384
+    raw = np.mod(factory + np.round(before / step), 16384)  # what each sensor reads in this pose
+    raw[:, 1:3] = 0x3FFF - raw[:, 1:3]
+    expected = (raw * step + np.pi) % (2 * np.pi) - np.pi
     mirrored = host.state().joint_angles(sim.device.joints)
-    assert np.abs(mirrored[:, 1:3]).min() > 0.05  # 0x3FFF − 2 × (reading), whatever that is
+    np.testing.assert_allclose((mirrored - expected + np.pi) % (2 * np.pi) - np.pi, 0.0, atol=2e-3)
+    # A 'z' after it zeroes them at the current pose.
     host.run(1.0, commands=[(1.6, Command.zero(target=BROADCAST_ID))])
     after = host.state().joint_angles(sim.device.joints)
     np.testing.assert_allclose(after[:, :3], 0.0, atol=2e-3)

@@ -24,6 +24,7 @@ import numpy as np
 from tangible import (
     SPLITTERS,
     Command,
+    CommandError,
     DeviceError,
     DeviceState,
     DeviceTree,
@@ -58,9 +59,10 @@ from .properties import IDENTITY
 CONNECT_TIMEOUT = 1.5
 #: The simulator's joints when nothing is bound or planned.
 SIMULATED_JOINTS = 3
-#: Longest wait for a joint to acknowledge a command (or to send readings after it), and how many times the
-#: zero command is sent before giving up.
-ACK_TIMEOUT, ZERO_ATTEMPTS = 0.5, 3
+#: Longest wait, beyond the reader's own attempts, for joints to acknowledge a command (or to send
+#: readings after it). The reader sends a command again when its ack does not come, ``attempts`` times
+#: (:class:`tangible.SerialReader`).
+ACK_TIMEOUT = 0.5
 #: Identify blinks a joint's green LED (the one the firmware leaves as set: its main loop drives red and
 #: blue itself) this many times, each half period on and half off.
 BLINKS, BLINK_PERIOD = 4, 0.5
@@ -327,27 +329,29 @@ class Session:
         flash) to each of ``joints`` and wait until each has acknowledged it and sent readings taken
         after; return that state.
 
-        One joint at a time, re-sent when no acknowledgement comes: a piece writing its flash ignores
-        polls, so a command that reaches it then is lost (``Src/main.c``, ``SET_FLASH``).
+        The reader sends them one at a time and sends each again when no acknowledgement comes: a piece
+        writing its flash ignores polls (``Src/main.c``, ``SET_FLASH``), and one that has just restarted
+        ignores the first (``bus.c`` lines 35–84), so a command that reaches it then is lost.
 
         Raises
         ------
         DeviceError
-            Naming the joints that did not acknowledge after :data:`ZERO_ATTEMPTS` tries.
+            Naming the joints that did not acknowledge after the reader's attempts.
         """
+        reader = self.reader
+        deliveries = [(j, reader.send(Command.zero(target=j))) for j in joints]
+        deadline = time.monotonic() + len(joints) * reader.attempts * reader.ack_timeout + ACK_TIMEOUT
         silent = []
-        for j in joints:
-            for _ in range(ZERO_ATTEMPTS):
-                acks = self.reader.state().components[j].acks
-                self.reader.send(Command.zero(target=j))
-                state = self.reader.wait_for(lambda s, j=j, n=acks: s.components[j].acks > n, ACK_TIMEOUT)
-                if state is not None:
-                    break
-            else:
+        for j, delivery in deliveries:
+            try:
+                ack = delivery.wait(max(0.0, deadline - time.monotonic()))
+            except CommandError:
+                ack = None
+            if ack is None:
                 silent.append(j)
         if silent:
             raise DeviceError(
-                f"joints {', '.join(map(str, silent))} did not confirm zeroing after {ZERO_ATTEMPTS} tries "
+                f"joints {', '.join(map(str, silent))} did not confirm zeroing after {reader.attempts} tries "
                 "(those that did are zeroed on the device); the scene's calibration was not changed"
             )
         acked = {j: self.reader.state().components[j].data_time or -np.inf for j in joints}
@@ -428,6 +432,9 @@ class Session:
         damaged = state.link.corrupt + state.link.oversize
         if damaged:
             text += f"; {damaged} damaged record{'s' * (damaged != 1)} skipped"
+        lost = state.link.unacknowledged
+        if lost:  # sent the reader's number of times, never acknowledged (the reader logged each)
+            text += f"; {lost} command{'s' * (lost != 1)} to the device unacknowledged"
         return "INFO", text
 
     def _driven_by(self, joints) -> list[str]:
