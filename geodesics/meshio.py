@@ -407,7 +407,9 @@ def _read_ply(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     fmt, elements, body = _ply_header(data)
     read = _ply_ascii_element if fmt == "ascii" else _ply_binary_element
     if fmt == "ascii":
-        state = {"tokens": data[body:].decode("ascii", errors="replace").split(), "position": 0}
+        # One record a line, as the PLY writers (MeshLab, Blender) write them and as happly and trimesh read
+        # them; numbered as the file's lines, for errors.
+        state = {"lines": data[body:].splitlines(), "line": 0, "first": data[:body].count(b"\n") + 1}
     else:
         state = {"offset": body}
     state["endian"] = ">" if fmt == "binary_big_endian" else "<"
@@ -428,51 +430,89 @@ def _read_ply(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             if values.dtype.kind == "f" and np.any(values != np.round(values)):
                 raise MeshError("the PLY faces hold vertex indices that are not integers")
             corners = values.astype(np.int64)
-        elif properties:
+        elif properties or fmt == "ascii":  # an ASCII record without properties is a (blank) line
             read(data, state, name, count, properties, [])
     return vertices, corners, sizes
 
 
 def _ply_ascii_element(data, state, name, count, properties, wanted):
-    """Read one element of an ASCII PLY body; returns the wanted properties (lists as (values, sizes))."""
-    tokens, start = state["tokens"], state["position"]
+    """Read one element of an ASCII PLY body; returns the wanted properties (lists as (values, sizes)).
+
+    Each record is one line, read as happly (geometry-central's reader) and trimesh read it: the declared
+    properties from the start of the line, values after them ignored (MeshLab writes per-face values its
+    header does not declare: trimesh's ``models/fuze_ascii.ply`` has six more on every face line), blank
+    lines before a record skipped (as happly does). A line with fewer values than its properties take is
+    an error naming the element and the line. References: happly.h ``parseASCII`` (nmwsharp/happly at
+    88f7972, geometry-central's ``deps/happly``, lines 1845-1862: a ``getline`` per record, empty lines
+    skipped, each property's ``parseNext`` taking tokens of that line only) and trimesh/exchange/ply.py
+    ``_ply_ascii`` (lines 868-882: ``splitlines``, one array per line, ``length`` lines per element) with
+    ``_load_element_single`` / ``_load_element_different`` (columns from the start of each row).
+    """
+    lines, at = state["lines"], state["line"]
+    rows: list[list[bytes]] = []
+    line_of: list[int] = []
+    while len(rows) < count:
+        if at == len(lines):
+            raise MeshError(f"the PLY file is truncated: its {name} element ends early")
+        words = lines[at].split()
+        if words or not properties:
+            rows.append(words)
+            line_of.append(state["first"] + at)
+        at += 1
+    state["line"] = at
+    lengths = np.fromiter(map(len, rows), np.int64, count)
+    row_start = np.cumsum(lengths) - lengths
+    tokens = np.empty(int(lengths.sum()), object)
+    tokens[:] = [word for words in rows for word in words]
+
+    def numbers_at(where: np.ndarray) -> np.ndarray:
+        try:
+            return tokens[where].astype(np.float64)
+        except ValueError:
+            bad = next(int(i) for i in where if not _is_number(tokens[i]))
+            row = int(np.searchsorted(row_start, bad, "right")) - 1
+            word = tokens[bad].decode("ascii", errors="replace")
+            raise MeshError(
+                f"the PLY {name} element holds a value that is not a number, {word!r}, on line {line_of[row]}"
+            ) from None
+
+    def too_short(rows_short: np.ndarray) -> None:
+        if rows_short.any():
+            row = int(np.argmax(rows_short))
+            raise MeshError(
+                f"the PLY {name} element's line {line_of[row]} holds {lengths[row]} values, fewer than its "
+                f"properties ({', '.join(p[0] for p in properties)}) take"
+            )
+
+    out = {}
+    position = np.zeros(count, np.int64)  # where each row's next property starts
+    for prop, value_type, count_type in properties:
+        size, first = np.ones(count, np.int64), position
+        if count_type is not None:
+            too_short(position >= lengths)
+            size, first = numbers_at(row_start + position), position + 1
+            bad = (size != np.round(size)) | (size < 0)
+            if bad.any():
+                raise MeshError(
+                    f"the PLY {name} element's line {line_of[int(np.argmax(bad))]} holds a list length that "
+                    "is negative or not a whole number"
+                )
+        too_short(first + size > lengths)  # in float64 still: a huge list length cannot wrap around
+        size = size.astype(np.int64)
+        if prop in wanted:
+            within = np.arange(int(size.sum())) - np.repeat(np.cumsum(size) - size, size)
+            values = _ply_cast(numbers_at(np.repeat(row_start + first, size) + within), value_type, name)
+            out[prop] = values if count_type is None else (values, size)
+        position = first + size
+    return out
+
+
+def _is_number(word: bytes) -> bool:
     try:
-        if count > len(tokens) - start:  # every row takes at least a number
-            raise IndexError
-        if all(p[2] is None for p in properties):
-            width = len(properties)
-            if start + count * width > len(tokens):
-                raise IndexError
-            block = np.array(tokens[start : start + count * width], dtype=np.float64).reshape(count, width)
-            state["position"] = start + count * width
-            return {
-                p[0]: _ply_cast(block[:, i], p[1], name) for i, p in enumerate(properties) if p[0] in wanted
-            }
-        found: dict[str, tuple[list[str], list[int]]] = {p[0]: ([], []) for p in properties if p[0] in wanted}
-        position = start
-        for _ in range(count):
-            for prop, _, count_type in properties:
-                size = 1 if count_type is None else int(tokens[position])
-                first = position + (count_type is not None)
-                if size < 0 or first + size > len(tokens):
-                    raise IndexError
-                if prop in found:
-                    found[prop][0].extend(tokens[first : first + size])
-                    found[prop][1].append(size)
-                position = first + size
-        state["position"] = position
-        out = {}
-        for prop, value_type, count_type in properties:
-            if prop in found:
-                values = _ply_cast(np.array(found[prop][0], dtype=np.float64), value_type, name)
-                out[prop] = values if count_type is None else (values, np.array(found[prop][1], np.int64))
-        return out
-    except IndexError:
-        raise MeshError(f"the PLY file is truncated: its {name} element ends early") from None
-    except MeshError:
-        raise
+        float(word)
     except ValueError:
-        raise MeshError(f"the PLY {name} element holds a value that is not a number") from None
+        return False
+    return True
 
 
 def _ply_cast(values: np.ndarray, value_type: str, name: str) -> np.ndarray:

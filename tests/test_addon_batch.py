@@ -116,8 +116,19 @@ def test_pose_command_poses_a_copy_and_never_writes_its_input(demo, tmp_path):
     assert re.search(r"^  solving +\d+/2000 energy \S+, \d+:\d\d elapsed$", done.stderr, re.MULTILINE)
     assert digest(scene) == before
 
-    refused = contact_edit("pose", str(scene), "-o", str(scene), cwd=tmp_path, user_dir=user)
-    assert refused.returncode == 1 and "is the input scene" in refused.stderr
+    for overwrite in ((), ("--overwrite",)):  # never, even when told to (issue 39)
+        refused = contact_edit("pose", str(scene), "-o", str(scene), *overwrite, cwd=tmp_path, user_dir=user)
+        assert refused.returncode == 1 and "is the input scene: an input, never written" in refused.stderr
+    posed = (tmp_path / "posed.blend").read_bytes()
+    refused = contact_edit("pose", str(scene), "-o", "posed.blend", cwd=tmp_path, user_dir=user)
+    assert refused.returncode == 1 and "posed.blend exists; choose another output, or pass --overwrite" in (
+        refused.stderr
+    )
+    assert (tmp_path / "posed.blend").read_bytes() == posed
+    done = contact_edit(
+        "pose", str(scene), "--frame", "30", "-o", "posed.blend", "--overwrite", cwd=tmp_path, user_dir=user
+    )
+    assert done.returncode == 0, done.stderr
     corrupt = tmp_path / "corrupt.json"
     corrupt.write_text('{"format": "contact-edit/pairing", "version": 1, "hand": {"format": ')
     bad = contact_edit(
@@ -210,3 +221,16 @@ def test_the_example_with_the_issues_four_pads_touches_from_the_open_hand(tmp_pa
     assert found["transferred"] == ["index tip", "middle tip", "palm", "thumb tip"]
     assert found["touching"] == found["transferred"], found["summary"]
     assert found["deepest"] < 0.2e-3, found["summary"]
+
+
+def test_demo_replaces_its_files_only_with_overwrite(tmp_path):
+    """Issue 39: the demo wrote its .blend over an existing one without asking (checked before the work)."""
+    (tmp_path / "demo").mkdir()
+    (tmp_path / "demo" / "demo.blend").write_bytes(b"a scene of mine")
+    done = contact_edit("demo", "--out", "demo", "--no-render", cwd=tmp_path, user_dir=tmp_path / "user")
+    assert done.returncode == 1 and done.stdout == ""
+    assert done.stderr.splitlines() == [
+        "contact-edit demo: demo/demo.blend exists; choose another folder (--out), or pass --overwrite to "
+        "replace it"
+    ]
+    assert (tmp_path / "demo" / "demo.blend").read_bytes() == b"a scene of mine"

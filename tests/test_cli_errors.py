@@ -2,9 +2,11 @@
 Ctrl-C (exit 130) that says how to go on, and the retarget's warnings never silent."""
 
 import importlib.util
+import os
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from contact_edit_addon.commands.cli import main
 
@@ -180,3 +182,121 @@ def test_the_retarget_titles_its_plot(tmp_path, capsys, monkeypatch):
     plots = importlib.util.find_spec("matplotlib") is not None
     assert saved == {"out": out, "plot": plots, "title": "grasp.npz: 44 frames onto alien (scale 1)"}
     assert f"plot       {out / 'metrics.png'}" in capsys.readouterr().out
+
+
+# ------------------------------------------------------------------------------- outputs and inputs
+
+
+def test_synthesize_replaces_an_existing_file_only_with_overwrite(tmp_path, capsys, monkeypatch):
+    """Issue 39: ``synthesize copy.blend`` wrote a motion over a .blend without asking."""
+    from solver.retarget import synthetic
+
+    blend = tmp_path / "copy.blend"
+    blend.write_bytes(b"BLENDER-v500 a scene to keep")
+    generate = synthetic.generate
+    monkeypatch.setattr(synthetic, "generate", interrupt)  # nothing generated before the check
+    assert main(["synthesize", str(blend), "--frames", "60"]) == 1
+    assert one_line(capsys.readouterr().err) == (
+        f"contact-edit synthesize: {blend} exists; choose another output, or pass --overwrite to replace it"
+    )
+    assert blend.read_bytes() == b"BLENDER-v500 a scene to keep"
+    monkeypatch.setattr(synthetic, "generate", generate)
+    args = ["synthesize", str(blend), "--object", "sphere", "--frames", "44", "--density", "2", "--overwrite"]
+    assert main(args) == 0
+    assert f"saved {blend}" in capsys.readouterr().out
+    from solver.retarget import Motion
+
+    assert Motion.load(blend).n_frames == 44
+
+
+def test_a_retarget_never_writes_over_its_inputs_even_with_overwrite(tmp_path, capsys, monkeypatch):
+    """Issue 39: ``retarget w3/motion.npz -o w3`` replaced its source with the target hand's motion.npz.
+    Every file the retarget writes is checked, those in its output folder and its frames folder too."""
+    from solver.retarget import pipeline
+
+    monkeypatch.setattr(pipeline, "retarget", lambda *a, **k: 1 / 0)  # never reached
+    w3 = tmp_path / "w3"
+    w3.mkdir()
+    source = w3 / "motion.npz"
+    source.write_bytes(b"PK a witch's motion")
+    for overwrite in ([], ["--overwrite"]):
+        assert main(["retarget", str(source), "--target", "alien", "-o", str(w3), *overwrite]) == 1
+        assert one_line(capsys.readouterr().err) == (
+            f"contact-edit retarget: {source} is the source motion: an input, never written, even with "
+            "--overwrite; choose another output folder (-o)"
+        )
+    # Spelled otherwise, through a hard link, in a folder holding a run's frames: still the input.
+    (w3 / "frames").mkdir()
+    os.link(source, tmp_path / "alias.npz")
+    assert main(["retarget", str(tmp_path / "alias.npz"), "--target", "alien", "-o", f"{w3}/../w3/"]) == 1
+    assert f"{w3}/../w3/motion.npz is the source motion: an input" in one_line(capsys.readouterr().err)
+    (tmp_path / "alias.npz").unlink()
+    # The annotation, as a previous run wrote it, given back into that folder.
+    (w3 / "annotation.json").write_text('{"an": "annotation"}')
+    args = ["retarget", str(tmp_path / "m.npz"), "--target", "alien", "-o", str(w3), "--overwrite"]
+    assert main([*args, "--annotation", str(w3 / "annotation.json")]) == 1
+    assert f"{w3 / 'annotation.json'} is the annotation (--annotation): an input" in capsys.readouterr().err
+    # An input inside the frames folder, whose files are named as the run goes.
+    (w3 / "frames" / "root").mkdir()
+    (w3 / "frames" / "root" / "drawn.json").write_text("{}")
+    assert main([*args, "--annotation", str(w3 / "frames" / "root" / "drawn.json")]) == 1
+    assert one_line(capsys.readouterr().err) == (
+        f"contact-edit retarget: {w3 / 'frames' / 'root' / 'drawn.json'} is the annotation (--annotation): "
+        f"an input, inside {w3 / 'frames'}, which this command fills with its work; move the input or "
+        "choose another output folder (-o)"
+    )
+    assert source.read_bytes() == b"PK a witch's motion"
+    assert (w3 / "annotation.json").read_text() == '{"an": "annotation"}'
+
+
+def test_a_retarget_replaces_results_outside_a_run_only_with_overwrite(tmp_path, capsys, monkeypatch):
+    """A folder without a run's frames is not the run's own: its files are replaced only with
+    --overwrite. A folder holding frames is resumed (another run's frames are refused when read)."""
+    from solver.retarget import pipeline
+
+    fake_motion(monkeypatch)
+    monkeypatch.setattr(pipeline, "retarget", lambda *a, **k: FakeRetarget())
+    saved = []
+    monkeypatch.setattr(pipeline, "save_result", lambda result, out, *a, **k: saved.append(out) or {})
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "summary.json").write_text("mine")
+    args = ["retarget", str(tmp_path / "grasp.npz"), "--target", "alien", "-o", str(out), "--no-plot"]
+    assert main(args) == 1
+    assert one_line(capsys.readouterr().err) == (
+        f"contact-edit retarget: {out / 'summary.json'} exists; choose another output folder (-o), or pass "
+        "--overwrite to replace it"
+    )
+    assert saved == [] and (out / "summary.json").read_text() == "mine"
+    assert main([*args, "--overwrite"]) == 0 and saved == [out]
+    (out / "frames").mkdir()  # as a run leaves it: the same command again resumes
+    assert main(args) == 0 and saved == [out, out]
+
+
+def test_outputs_are_compared_with_inputs_as_files(tmp_path):
+    """check_outputs: the same file however it is named (a relative path, .., a symlink, a hard link);
+    existing outputs refused unless overwrite; an input inside a work folder, at any depth."""
+    from contact_edit_addon.commands.outputs import check_outputs
+
+    scene = tmp_path / "scene.blend"
+    scene.write_bytes(b"scene")
+    (tmp_path / "link.blend").symlink_to(scene)
+    os.link(scene, tmp_path / "hard.blend")
+    for output in (
+        scene,
+        tmp_path / "sub" / ".." / "scene.blend",
+        tmp_path / "link.blend",
+        tmp_path / "hard.blend",
+    ):
+        for overwrite in (False, True):
+            with pytest.raises(FileExistsError, match="is the scene: an input, never written"):
+                check_outputs([output], {scene: "the scene"}, overwrite=overwrite)
+    other = tmp_path / "other.blend"
+    check_outputs([other], {scene: "the scene", None: "no file given"})  # new: fine
+    other.write_bytes(b"")
+    with pytest.raises(FileExistsError, match=r"other\.blend exists; choose another output, or pass --over"):
+        check_outputs([other], {scene: "the scene"})
+    check_outputs([other], {scene: "the scene"}, overwrite=True)
+    with pytest.raises(FileExistsError, match=r"inside .*, which this command fills with its work"):
+        check_outputs([], {scene: "the scene"}, folders=[tmp_path.parent])
+    check_outputs([], {scene: "the scene"}, folders=[tmp_path / "frames"])

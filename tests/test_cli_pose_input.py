@@ -56,7 +56,9 @@ def assert_nothing_written(folder: Path, before: set[str]) -> None:
 def test_a_file_blender_cannot_open_is_one_line_and_nothing_is_written(files, name, reason):
     (files / "out.blend").write_bytes(PREVIOUS)
     before = {p.name for p in files.iterdir()}
-    done = contact_edit("pose", f"{name}.blend", "-o", "out.blend", cwd=files, user_dir=files / "user")
+    done = contact_edit(
+        "pose", f"{name}.blend", "-o", "out.blend", "--overwrite", cwd=files, user_dir=files / "user"
+    )  # an output it may replace, kept as it was
     assert done.returncode == 1
     assert done.stderr.splitlines() == [f"contact-edit pose: {files / name}.blend: {reason}"]
     assert done.stdout == ""  # not Blender's "Error: File format is not supported …" or "Read blend: …"
@@ -67,7 +69,14 @@ def test_debug_shows_the_traceback_and_blenders_own_error(files):
     (files / "out.blend").write_bytes(PREVIOUS)
     before = {p.name for p in files.iterdir()}
     done = contact_edit(
-        "--debug", "pose", "truncated.blend", "-o", "out.blend", cwd=files, user_dir=files / "user"
+        "--debug",
+        "pose",
+        "truncated.blend",
+        "-o",
+        "out.blend",
+        "--overwrite",
+        cwd=files,
+        user_dir=files / "user",
     )
     assert done.returncode == 1
     assert "Traceback (most recent call last):" in done.stderr
@@ -138,3 +147,36 @@ print("after", flush=True)
     done = fresh_process([sys.executable, "-c", script], user_dir=tmp_path / "user", timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.splitlines() == ["before", "c-before", "shown", "c-after", "after"]
+
+
+def test_pose_never_writes_over_its_inputs_and_replaces_an_output_only_with_overwrite(files, tmp_path):
+    """Issue 39: the scene and the pairing file are never written, even with --overwrite; another
+    existing file is replaced only with --overwrite (which then gets as far as opening the scene)."""
+    scene = tmp_path / "tiny.blend"
+    scene.write_bytes((files / "tiny.blend").read_bytes())
+    pairing = tmp_path / "contacts.json"
+    pairing.write_text('{"format": "contact-edit/pairing"}')
+    kept = {scene: scene.read_bytes(), pairing: pairing.read_bytes()}
+    for output, what in ((scene, "the input scene"), (pairing, "the pairing file (--contacts)")):
+        done = contact_edit(
+            "pose", "tiny.blend", "--contacts", "contacts.json", "-o", output.name, "--overwrite",
+            cwd=tmp_path, user_dir=files / "user",
+        )  # fmt: skip
+        assert done.returncode == 1 and done.stdout == ""
+        assert done.stderr.splitlines() == [
+            f"contact-edit pose: {output} is {what}: an input, never written, even with --overwrite; "
+            "choose another output"
+        ]
+    assert {p: p.read_bytes() for p in kept} == kept
+    (tmp_path / "out.blend").write_bytes(PREVIOUS)
+    done = contact_edit("pose", "tiny.blend", "-o", "out.blend", cwd=tmp_path, user_dir=files / "user")
+    assert done.returncode == 1
+    assert done.stderr.splitlines() == [
+        f"contact-edit pose: {tmp_path / 'out.blend'} exists; choose another output, or pass --overwrite to "
+        "replace it"
+    ]
+    done = contact_edit(
+        "pose", "tiny.blend", "-o", "out.blend", "--overwrite", cwd=tmp_path, user_dir=files / "user"
+    )
+    assert done.returncode == 1 and "no hand and no object chosen" in done.stderr  # past the check
+    assert (tmp_path / "out.blend").read_bytes() == PREVIOUS and scene.read_bytes() == kept[scene]

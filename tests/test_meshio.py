@@ -506,6 +506,88 @@ def test_ascii_ply_values_take_their_declared_type(tmp_path):
     fails(write(tmp_path / "neg.ply", header.replace("face 1", "face -1")), "header line 'element face -1'")
 
 
+# MeshLab's ASCII PLY, laid out as trimesh's models/fuze_ascii.ply (mikedh/trimesh): its header verbatim
+# but for the counts, its first 7 vertex lines and the first 5 face lines (which use only those vertices),
+# each line with its trailing space. Every face line holds 21 values where the header declares 15 (list of
+# 3 indices, list of 6 texcoords, 4 colours): MeshLab writes 6 more that trimesh and geometry-central's
+# happly, which read a line per record, ignore.
+FUZE_HEADER = (
+    "ply\nformat ascii 1.0\ncomment VCGLIB generated\ncomment TextureFile fuze uv.jpg\nelement vertex 7\n"
+    "property float x\nproperty float y\nproperty float z\nproperty uchar red\nproperty uchar green\n"
+    "property uchar blue\nproperty uchar alpha\nelement face 5\nproperty list uchar int vertex_indices\n"
+    "property list uchar float texcoord\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n"
+    "property uchar alpha\nend_header\n"
+)
+FUZE_VERTICES = [
+    "0.002047 -0.002871 0.004031 192 192 192 255 ",
+    "0.002047 0.006546 0.004031 192 192 192 255 ",
+    "0.013817 -0.007579 0.004031 192 192 192 255 ",
+    "0.011463 0.001838 0.004031 192 192 192 255 ",
+    "0.011463 0.011254 0.004031 192 192 192 255 ",
+    "-0.008547 0.000661 0.004031 192 192 192 255 ",
+    "-0.009724 -0.007579 0.004031 192 192 192 255 ",
+]
+FUZE_FACES = [
+    "3 0 5 1 6 0.629012 0.417026 0.599829 0.426753 0.629012 0.442966 9 1 1 1 1 1 1 1 1 1 ",
+    "3 0 6 5 6 0.629012 0.417026 0.596587 0.404056 0.599829 0.426753 9 1 1 1 1 1 1 1 1 1 ",
+    "3 2 0 3 6 0.661437 0.404056 0.629012 0.417026 0.654952 0.429996 9 1 1 1 1 1 1 1 1 1 ",
+    "3 3 0 1 6 0.654952 0.429996 0.629012 0.417026 0.629012 0.442966 9 1 1 1 1 1 1 1 1 1 ",
+    "3 3 1 4 6 0.654952 0.429996 0.629012 0.442966 0.654952 0.455936 9 1 1 1 1 1 1 1 1 1 ",
+]
+
+
+def fuze(vertices=FUZE_VERTICES, faces=FUZE_FACES) -> str:
+    return FUZE_HEADER + "".join(line + "\n" for line in vertices + faces)
+
+
+def test_meshlab_ascii_ply_with_undeclared_values_after_each_face(tmp_path):
+    """Each record is its line: the declared properties are read, MeshLab's extra values ignored."""
+    assert all(len(line.split()) == 4 + 7 + 4 + 6 for line in FUZE_FACES)  # 6 undeclared values a line
+    mesh = load_mesh(write(tmp_path / "fuze.ply", fuze()))
+    declared = np.array([line.split()[:3] for line in FUZE_VERTICES], np.float32)  # "property float"
+    assert np.array_equal(mesh.vertices, declared.astype(np.float64))
+    assert mesh.faces.tolist() == [[int(i) for i in line.split()[1:4]] for line in FUZE_FACES]
+    # Windows line ends and blank lines before a record (happly skips them) read the same
+    crlf = fuze(FUZE_VERTICES, ["", *FUZE_FACES]).replace("\n", "\r\n")
+    assert np.array_equal(load_mesh(write(tmp_path / "crlf.ply", crlf)).faces, mesh.faces)
+
+
+def test_ascii_ply_lines_too_short_for_their_properties_name_element_and_line(tmp_path):
+    """A record cut short, or carried on over two lines, is an error naming the element and the line."""
+    short = [*FUZE_FACES[:2], "3 2 0 3 6 0.661437 0.404056 0.629012", *FUZE_FACES[3:]]
+    fails(write(tmp_path / "short.ply", fuze(faces=short)), r"PLY face element's line 30 holds 8 values")
+    split = [*FUZE_VERTICES[:3], "0.011463 0.001838", "0.004031 192 192 192 255", *FUZE_VERTICES[4:]]
+    fails(write(tmp_path / "split.ply", fuze(split)), r"PLY vertex element's line 24 holds 2 values")
+    text = fuze(faces=[*FUZE_FACES[:4], "3 3 1 x 6 0.65 0.42 0.62 0.44 0.65 0.45 9 1 1 1"])
+    fails(
+        write(tmp_path / "word.ply", text),
+        r"face element holds a value that is not a number, 'x', on line 32",
+    )
+    lists = fuze(faces=[*FUZE_FACES[:1], "-3 0 6 5", *FUZE_FACES[2:]])
+    fails(
+        write(tmp_path / "negative.ply", lists),
+        r"face element's line 29 holds a list length that is negative",
+    )
+    fails(write(tmp_path / "cut.ply", fuze(faces=FUZE_FACES[:4])), "truncated: its face element ends early")
+
+
+@settings(max_examples=60, deadline=None)
+@given(cut=st.floats(0, 1), flips=st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), max_size=4))
+def test_damaged_ascii_ply_loads_or_raises_mesh_errors(tmp_path_factory, cut, flips):
+    """The line reader too: any prefix of MeshLab's layout, any bytes changed, loads or raises a MeshError."""
+    data = bytearray(fuze().encode())
+    for where, value in flips:
+        data[int(where * (len(data) - 1))] = value
+    path = tmp_path_factory.mktemp("damaged") / "fuze.ply"
+    write(path, bytes(data[: int(cut * len(data))]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            load_mesh(path)
+        except MeshError as err:
+            assert str(path) in str(err)
+
+
 def test_without_trimesh_stl_and_gltf_raise_mesh_errors(tmp_path, monkeypatch):
     path = tmp_path / "mesh.stl"
     save_mesh(MESHES["icosphere"], path)

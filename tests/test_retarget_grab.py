@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from contact_edit_addon.commands import cli
-from geodesics import MeshWarning, TriMesh
+from geodesics import MeshWarning, TriMesh, save_mesh
 from geodesics.primitives import icosphere
 from solver.retarget import Motion, pair_motion
 from solver.retarget import synthetic as sy
@@ -625,3 +625,36 @@ def test_import_grab_defaults_are_the_librarys():
         ["import-grab", "m.npz", "--hand-mesh", "h", "--object-mesh", "o", "-o", "x"]
     )
     assert args.fps == GRAB_FPS and args.cutoff == DEFAULT_CUTOFF and not args.no_pair
+
+
+def test_import_grab_never_writes_over_its_inputs(tiny, tmp_path, capsys):
+    """Issue 39: ``-o`` naming the hand mesh (or the GRAB export) saved the motion zip over it. Refused
+    for each input, even with --overwrite, the inputs' bytes as they were; an existing output that is not
+    an input is replaced only with --overwrite."""
+    path, hand, obj = tiny
+    grab_dir = tmp_path / "grab"
+    grab_dir.mkdir()
+    export = grab_dir / "s_right_full_export_motion.npz"
+    export.write_bytes(path.read_bytes())
+    save_mesh(hand, grab_dir / "hand.obj")
+    save_mesh(obj, grab_dir / "obj.obj")
+    inputs = {p: p.read_bytes() for p in (export, grab_dir / "hand.obj", grab_dir / "obj.obj")}
+    args = ["import-grab", str(export), "--hand-mesh", str(grab_dir / "hand.obj")]
+    args += ["--object-mesh", str(grab_dir / "obj.obj")]
+    what = ["the GRAB motion", "the hand mesh (--hand-mesh)", "the object mesh (--object-mesh)"]
+    for target, name in zip(inputs, what, strict=True):
+        for overwrite in ([], ["--overwrite"]):
+            assert cli.main([*args, "-o", str(target), *overwrite]) == 1
+            assert capsys.readouterr().err == (
+                f"contact-edit import-grab: {target} is {name}: an input, never written, even with "
+                "--overwrite; choose another output (-o)\n"
+            )
+    assert {p: p.read_bytes() for p in inputs} == inputs
+    out = tmp_path / "motion.npz"
+    out.write_bytes(b"an older import")
+    assert cli.main([*args, "-o", str(out)]) == 1
+    assert f"{out} exists; choose another output (-o), or pass --overwrite" in capsys.readouterr().err
+    assert out.read_bytes() == b"an older import"
+    assert cli.main([*args, "-o", str(out), "--overwrite", "--no-pair"]) == 0
+    assert Motion.load(out).n_frames == 3
+    assert {p: p.read_bytes() for p in inputs} == inputs

@@ -1,9 +1,10 @@
 """Batch posing of saved scenes (``contact-edit pose``), with the bpy module or inside Blender.
 
 The scene is opened, its hand posed from its stored contacts (or a pairing file's), and saved to a new
-file; the input is never written unless the caller asks. Output is written atomically: a complete
-.blend at the output path, or the previous file (if any) untouched. A file Blender cannot open is a
-:class:`BridgeError` naming the file and what is wrong with it, before anything is written.
+file; the inputs are never written, an existing output only when the caller asks. Output is written
+atomically: a complete .blend at the output path, or the previous file (if any) untouched. A file
+Blender cannot open is a :class:`BridgeError` naming the file and what is wrong with it, before anything
+is written.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from solver import SolverError
 
 from .. import posing, store
 from ..bridge import BridgeError
+from .outputs import check_outputs
 
 
 class SceneChoiceError(BridgeError):
@@ -66,7 +68,7 @@ def pose_scene(
     Parameters
     ----------
     scene_path, output : path-like
-        The .blend to read and the one to write (the same only with ``overwrite``).
+        The .blend to read and the one to write (never the same, nor the pairing file).
     hand, target : str, optional
         Object names (default: the hand and object chosen in the scene's Contact tab).
     contacts : path-like, optional
@@ -78,6 +80,8 @@ def pose_scene(
         only if the armature is already animated (otherwise its animation would override the pose).
     stage : str
         ``"ROOT"``, ``"ALL"`` or ``"SELECTED"`` (see :data:`posing.STAGES`).
+    overwrite : bool
+        Replace an existing output file (never an input: :func:`.outputs.check_outputs`).
     progress : callable, optional
         Called with (evaluations, max_evaluations, energy) as the solve goes.
     quiet : bool
@@ -97,12 +101,12 @@ def pose_scene(
         raise BridgeError(f"{scene_path}: a folder, not a .blend file")
     if not scene_path.is_file():
         raise BridgeError(f"{scene_path}: no such .blend file")
-    if output == scene_path and not overwrite:
-        raise BridgeError(f"{output} is the input scene; choose another output or allow overwriting it")
     if output.is_dir():
         raise BridgeError(f"{output}: a folder; name the .blend file to write")
     if not output.parent.is_dir():
         raise BridgeError(f"{output.parent}: no such folder for the output")
+    inputs = {scene_path: "the input scene", contacts: "the pairing file (--contacts)"}
+    check_outputs([output], inputs, overwrite=overwrite, error=BridgeError)
     _open(scene_path, quiet)
     scene = bpy.context.scene
     settings = scene.contact_edit

@@ -30,6 +30,10 @@ Subcommands:
 ``demo``, ``pose``, ``bench rigs`` and ``bench operators`` need Blender's Python module
 (``pip install "contact-edit[blender]"``).
 
+No command writes over one of its input files, even with ``--overwrite``, nor replaces an existing
+output file without ``--overwrite`` (:mod:`.outputs`; a retarget's folder holding its run's frames is
+that run's own, which it resumes); ``build-extension`` replaces the zips of the version it builds.
+
 Errors in the input end a command with one line on stderr, ``contact-edit <command>: <what is wrong>``,
 and exit status 1 (``--debug`` adds the traceback); Ctrl-C ends it with a line saying what is kept and
 exit status 130. Progress goes to stderr: bars on a terminal, plain periodic lines elsewhere.
@@ -64,6 +68,13 @@ def _output_folder(path: str) -> None:
 
     if Path(path).exists() and not Path(path).is_dir():
         raise _InputError(f"{path}: not a folder (the output is a folder of files)")
+
+
+def _check_outputs(outputs, inputs, overwrite: bool, **options) -> None:
+    """Refuse, before any work, outputs that are inputs, and existing ones unless ``overwrite``."""
+    from .outputs import check_outputs
+
+    check_outputs(outputs, inputs, overwrite=overwrite, error=_InputError, **options)
 
 
 def _progress(what: str) -> None:
@@ -270,9 +281,16 @@ def _blender():
 
 
 def _demo(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    _output_folder(args.out)
     if _blender() is None:
         return 2
     from . import demo
+
+    written = [k for k in demo.FILES if k != "image" or not args.no_render]
+    outputs = [Path(args.out) / demo.FILES[k] for k in written]
+    _check_outputs(outputs, {}, args.overwrite, instead="choose another folder (--out)")
 
     result = demo.run(args.out, render=not args.no_render, progress=_progress)
     print(f"contact-edit demo: a procedural human hand grasps a mug ({result.seconds:.1f} s in all)")
@@ -315,6 +333,7 @@ def _synthesize(args: argparse.Namespace) -> int:
     from solver.retarget import synthetic
 
     _output_file(args.output)
+    _check_outputs([args.output], {}, args.overwrite)
     with _StageBars() as bars:
         motion = synthetic.generate(
             args.object, frames=args.frames, fps=args.fps, seed=args.seed, scale=args.scale,
@@ -334,6 +353,9 @@ def _median(counts) -> float:
     return float(np.median(touching)) if touching.size else 0.0
 
 
+#: The retarget's folder of per-frame results, inside its output folder.
+_FRAMES = "frames"
+
 # solver.retarget.grab.GRAB_FPS and solver.retarget.pairing.DEFAULT_CUTOFF, spelled out so that building
 # the parser does not import the solver (a test checks they agree).
 _GRAB_FPS, _CUTOFF = 120.0, 0.01
@@ -344,6 +366,12 @@ def _import_grab(args: argparse.Namespace) -> int:
     from solver.retarget import grab, pair_motion
 
     _output_file(args.output)
+    inputs = {
+        args.motion: "the GRAB motion",
+        args.hand_mesh: "the hand mesh (--hand-mesh)",
+        args.object_mesh: "the object mesh (--object-mesh)",
+    }
+    _check_outputs([args.output], inputs, args.overwrite, instead="choose another output (-o)")
     hand_mesh = load_mesh(args.hand_mesh)
     object_mesh = load_mesh(args.object_mesh)
     motion = grab.load_grab(args.motion, hand_mesh, object_mesh, fps=args.fps, pair=False)
@@ -398,6 +426,16 @@ def _retarget(args: argparse.Namespace) -> int:
 
     out = Path(args.output)
     _output_folder(args.output)
+    frames = out / _FRAMES
+    # A folder holding frames is a run's own (the frames say whose: another run's are refused), and so
+    # are the results in it, which a resumed or extended run writes again.
+    _check_outputs(
+        [out / name for name in pipeline.RESULT_FILES.values()],
+        {args.motion: "the source motion", args.annotation: "the annotation (--annotation)"},
+        args.overwrite or frames.is_dir(),
+        folders=[frames],
+        instead="choose another output folder (-o)",
+    )
     motion = Motion.load(args.motion)
     target = HandSpec(args.target, args.scale)
     if args.annotation:
@@ -417,7 +455,7 @@ def _retarget(args: argparse.Namespace) -> int:
     )  # fmt: skip
     with _StageBars() as bars:
         result = pipeline.retarget(
-            motion, target, annotation, options, folder=out / "frames", workers=args.workers,
+            motion, target, annotation, options, folder=frames, workers=args.workers,
             scheduler=args.scheduler, progress=bars,
         )  # fmt: skip
     title = f"{Path(args.motion).name}: {motion.n_frames} frames onto {args.target} (scale {args.scale:g})"
@@ -508,6 +546,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+_OVERWRITE_HELP = "replace an existing output file (never an input file: those are never written)"
+
+
 def _bench_parser(command: _Subcommand) -> None:
     """The ``bench`` subcommand's arguments."""
     bench = command(
@@ -572,6 +613,7 @@ def _demo_parser(command: _Subcommand) -> None:
     )
     demo.add_argument("--out", default="demo", help="folder for demo.blend, demo.png, contacts.json")
     demo.add_argument("--no-render", action="store_true", help="skip the Cycles render")
+    demo.add_argument("--overwrite", action="store_true", help=_OVERWRITE_HELP)
     demo.set_defaults(run=_demo)
 
 
@@ -581,10 +623,10 @@ def _pose_parser(command: _Subcommand) -> None:
         "pose",
         "pose the hand of a saved scene from its contacts",
         "Open a saved .blend, pose its hand so that its contact patches meet the object's, and save the "
-        "result to a new .blend (written whole or not at all; the input is never written unless "
-        "--overwrite).",
+        "result to a new .blend (written whole or not at all; never over the scene or the pairing file, "
+        "over another existing file only with --overwrite).",
     )
-    pose.add_argument("scene", help="the .blend to pose (never written unless --overwrite)")
+    pose.add_argument("scene", help="the .blend to pose (never written)")
     pose.add_argument("--output", "-o", required=True, help="the posed .blend to write")
     pose.add_argument("--hand", help="the hand mesh object (default: the scene's Contact tab choice)")
     pose.add_argument("--object", help="the object mesh (default: the scene's Contact tab choice)")
@@ -600,7 +642,7 @@ def _pose_parser(command: _Subcommand) -> None:
         "if the armature is animated)",
     )  # fmt: skip
     pose.add_argument("--stage", choices=["ROOT", "ALL", "SELECTED"], default="ALL", help="which bones move")
-    pose.add_argument("--overwrite", action="store_true", help="allow the output to be the input scene")
+    pose.add_argument("--overwrite", action="store_true", help=_OVERWRITE_HELP)
     pose.set_defaults(run=_pose)
 
 
@@ -622,6 +664,7 @@ def _synthesize_parser(command: _Subcommand) -> None:
     synth.add_argument("--seed", type=int, default=0, help="draws the motion's variations")
     synth.add_argument("--scale", type=float, default=1.0, help="scale of the whole scene")
     synth.add_argument("--density", type=float, default=10.0, help="hand contact samples per cm²")
+    synth.add_argument("--overwrite", action="store_true", help=_OVERWRITE_HELP)
     synth.set_defaults(run=_synthesize)
 
 
@@ -639,6 +682,7 @@ def _import_grab_parser(command: _Subcommand) -> None:
         "--object-mesh", required=True, help="the exported object mesh (*_full_export_objectmesh.obj)"
     )
     imp.add_argument("--output", "-o", required=True, help="the motion file to write (.npz)")
+    imp.add_argument("--overwrite", action="store_true", help=_OVERWRITE_HELP)
     imp.add_argument("--fps", type=float, default=_GRAB_FPS, help="frame rate (GRAB's)")
     imp.add_argument(
         "--cutoff", type=float, default=_CUTOFF,
@@ -666,6 +710,10 @@ def _retarget_parser(command: _Subcommand) -> None:
         "--scale", type=float, default=1.0, help="the target hand's scale (child 0.75, large 1.25)"
     )
     ret.add_argument("--output", "-o", required=True, help="output folder (resumes if it holds this run)")
+    ret.add_argument(
+        "--overwrite", action="store_true",
+        help="replace result files in an output folder that holds no run's frames (never an input)",
+    )  # fmt: skip
     ret.add_argument(
         "--annotation", help="the hand pair's annotation, .json (default: made for procedural hands)"
     )
@@ -736,7 +784,7 @@ def _interrupted(args: argparse.Namespace) -> str:
     if args.command == "retarget":
         from pathlib import Path
 
-        frames = Path(args.output) / "frames"
+        frames = Path(args.output) / _FRAMES
         return f"interrupted; run the same command again to resume (solved frames are kept in {frames})"
     if args.command == "bench" and args.target == "retarget":
         return "interrupted; the benchmark works in temporary folders, so nothing is kept (run it again anew)"

@@ -59,6 +59,10 @@ class DemoResult:
     seconds: float
 
 
+#: The files :func:`run` writes into its folder (the image only when it renders).
+FILES = {"contacts": "contacts.json", "image": "demo.png", "blend": "demo.blend"}
+
+
 def run(out: Path, render: bool = True, progress: Callable[[str], None] = lambda _: None) -> DemoResult:
     """Build, pose, save and render the demo scene into the folder ``out`` (created if needed)."""
     out = Path(out)
@@ -100,14 +104,14 @@ def run(out: Path, render: bool = True, progress: Callable[[str], None] = lambda
     problem = posing.problem(scene)  # the solved pose as the scene holds it now, measured
     met = posing.touch(problem, problem.theta0)
 
-    contacts_file = out / "contacts.json"
+    contacts_file = out / FILES["contacts"]
     store.save_pairing(contacts_file, hand_obj, mug)
     image = None
     if render:
         progress("rendering (Cycles, CPU, denoised)")
-        image = out / "demo.png"
+        image = out / FILES["image"]
         _render(scene, [hand_obj, mug], image)
-    blend = out / "demo.blend"
+    blend = out / FILES["blend"]
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), check_existing=False)
     hand_set = store.load(hand_obj, layer="CONTACTS")
     return DemoResult(

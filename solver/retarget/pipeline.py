@@ -690,6 +690,19 @@ class _AsResult:
     theta: np.ndarray
 
 
+#: The files :func:`save_result` writes into its folder, by the key of the paths it returns (those it
+#: writes only in some cases included: a command checks them all before the work).
+RESULT_FILES = {
+    "motion": "motion.npz",
+    "kmexp": "motion.kmexp",
+    "curves": "curves.npz",
+    "summary": "summary.json",
+    "table1": "table1.txt",
+    "annotation": "annotation.json",
+    "plot": "metrics.png",
+}
+
+
 def save_result(
     result: Retarget,
     folder,
@@ -715,14 +728,10 @@ def save_result(
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    paths = {
-        "motion": folder / "motion.npz",
-        "curves": folder / "curves.npz",
-        "summary": folder / "summary.json",
-    }
+    paths = {key: folder / RESULT_FILES[key] for key in ("motion", "curves", "summary")}
     result.motion.save(paths["motion"])
     if rig is not None and float(result.motion.fps).is_integer():
-        paths["kmexp"] = folder / "motion.kmexp"
+        paths["kmexp"] = folder / RESULT_FILES["kmexp"]
         m = result.motion
         save_kmexp(
             paths["kmexp"], rig, result.theta, m.object_poses, m.fps, m.table, m.table_size, m.first_frame
@@ -748,7 +757,7 @@ def save_result(
     write_atomically(paths["curves"], buffer.getvalue())
     write_atomically(paths["summary"], json.dumps(result.summary(), indent=2))
     if result.table is not None:
-        paths["table1"] = folder / "table1.txt"
+        paths["table1"] = folder / RESULT_FILES["table1"]
         note = (
             "Refinement (§3.4.3) was skipped: every method's spline is fitted to its per-frame solves.\n"
             if result.refine_log is None
@@ -757,12 +766,12 @@ def save_result(
         control = f"Splines of {len(result.spline.control)} control points per DOF for every method.\n"
         write_atomically(paths["table1"], result.table.text() + "\n\n" + note + control)
     if annotation is not None:
-        paths["annotation"] = folder / "annotation.json"
+        paths["annotation"] = folder / RESULT_FILES["annotation"]
         annotation.save(paths["annotation"])
     if plot:
         counts = None if result.transferred is None else result.transferred.hand_contacts.count()
         paths["plot"] = plot_metrics(
-            folder / "metrics.png", result.motion.fps, marker_distance=result.marker_distance,
+            folder / RESULT_FILES["plot"], result.motion.fps, marker_distance=result.marker_distance,
             contact_distance=result.contact_distance, contact_count=counts,
             intersections=result.intersections, title=title,
         )  # fmt: skip
