@@ -22,13 +22,27 @@ def _renamed(self, context) -> None:
         store.rename(self.id_data, self, context.scene)
 
 
+def _recoloured(self, context) -> None:
+    """A colour set in the patch list is its pair's too, on the other object."""
+    from . import store
+
+    store.recolour(self, context.scene)
+
+
 class CONTACT_EDIT_PG_patch(bpy.types.PropertyGroup):
     """One contact patch as the patch list shows it (the contact set is the source of truth)."""
 
     name: bpy.props.StringProperty(name="Name", update=_renamed)
     stored_name: bpy.props.StringProperty(options={"HIDDEN"}, description="The patch's name in its set")
     color: bpy.props.FloatVectorProperty(
-        name="Colour", subtype="COLOR", size=4, min=0.0, max=1.0, default=(0.9, 0.4, 0.1, 1.0)
+        name="Colour",
+        subtype="COLOR",
+        size=4,
+        min=0.0,
+        max=1.0,
+        default=(0.9, 0.4, 0.1, 1.0),
+        description="The patch's colour in the viewport, and its pair's on the other object",
+        update=_recoloured,
     )
     points: bpy.props.IntProperty(name="Points", min=0)
     parent: bpy.props.StringProperty(name="Parent")

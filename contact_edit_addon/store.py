@@ -94,7 +94,9 @@ def save(
     hand (:data:`KEPT`) per name; ``colors`` and ``markers`` (names) set those of new patches."""
     data, list_name, _ = _names(obj, layer)
     listed = getattr(obj.contact_edit, list_name)
-    kept = {e.name: {key: getattr(e, key) for key in KEPT} for e in listed}
+    # Copied out: a colour read from an entry is a live view of it, which would read the new entry at the
+    # same place once the list is rebuilt (every partner's colour swapped at the next edit).
+    kept = {e.name: {key: _copied(getattr(e, key)) for key in KEPT} for e in listed}
     setattr(obj.contact_edit, data, json.dumps(contacts.to_dict()))
     listed.clear()
     for i, name in enumerate(contacts):
@@ -113,6 +115,27 @@ def save(
         entry.pair = contacts.pairs.get(name, "")
     set_active(obj, min(active_index(obj, layer), len(listed) - 1), layer)
     redraw()
+
+
+def _copied(value):
+    """A property's value, arrays (colours) as tuples rather than views of the entry they belong to."""
+    return value if isinstance(value, (str, bool, int, float)) else tuple(value)
+
+
+def recolour(entry, scene: bpy.types.Scene) -> None:
+    """Give a contact patch's partner on the scene's other object (hand or object) the colour just set on
+    its list entry: a pair is drawn in one colour on both."""
+    if not entry.pair or entry.path_from_id().startswith("contact_edit.annotation_patches"):
+        return
+    settings = scene.contact_edit
+    for counterpart in {settings.hand, settings.target} - {entry.id_data, None}:
+        for other in entries(counterpart, "CONTACTS"):
+            if (
+                other.name == entry.pair
+                and other.pair == entry.name
+                and tuple(other.color) != tuple(entry.color)
+            ):
+                other.color = entry.color
 
 
 def rename(obj: bpy.types.Object, entry, scene: bpy.types.Scene) -> None:

@@ -207,6 +207,43 @@ def test_a_name_edited_in_the_patch_list_renames_the_patch(tmp_path):
     assert out["annotation"] == out["annotation_entries"] == ["index"]
 
 
+def test_a_pair_keeps_one_colour_through_transfers_in_any_order_and_edits(tmp_path):
+    """Issue 37's case: paint ``contact`` then ``contact.001``, transfer the second first, then move and
+    turn a copy on the ball. Each copy keeps its hand patch's colour (saving a list read its kept colours
+    as views of the entries it then rebuilt, so every save swapped them by position), and a colour set in
+    either list is its partner's too, through later edits."""
+    out = run_blender(
+        """
+        select_disk(0.2, 0.1, 0.25)
+        bpy.ops.contact_edit.paint(name="contact", source="SELECTION")
+        select_disk(-0.4, -0.3, 0.2)
+        bpy.ops.contact_edit.paint(name="contact.001", source="SELECTION")
+        for patch, where in (("contact.001", (0, 0, 2.0)), ("contact", (0, 0.5, 2.1))):
+            bpy.ops.contact_edit.transfer(patch=patch, location=where, direction=(1, 0, 0), suffix="@b")
+        bpy.context.view_layer.objects.active = ball
+        bpy.ops.contact_edit.translate(patch="contact@b", object_name="Ball", location=(0.1, 0.6, 2.1))
+        bpy.ops.contact_edit.rotate(patch="contact.001@b", object_name="Ball", angle=0.4)
+        def colours():
+            return {e.name: [round(c, 4) for c in e.color]
+                    for obj in (hand, ball) for e in store.entries(obj, "CONTACTS")}
+        edited = colours()
+        store.entries(ball, "CONTACTS")["contact@b"].color = (1.0, 0.0, 0.0, 1.0)
+        bpy.ops.contact_edit.rotate(patch="contact.001@b", object_name="Ball", angle=-0.4)
+        bpy.context.view_layer.objects.active = hand
+        bpy.ops.contact_edit.rotate(patch="contact", object_name="Hand", angle=0.2)
+        result(dict(edited=edited, picked=colours()))
+        """,
+        tmp_path,
+        setup=SETUP,
+    )
+    edited, picked = out["edited"], out["picked"]
+    assert edited["contact"] != edited["contact.001"]
+    for name in ("contact", "contact.001"):
+        assert edited[name] == edited[f"{name}@b"]
+    assert picked["contact"] == picked["contact@b"] == [1.0, 0.0, 0.0, 1.0]
+    assert picked["contact.001"] == picked["contact.001@b"] == edited["contact.001"]
+
+
 def test_brush_strokes_become_points_inside_faces(tmp_path):
     out = run_blender(
         """
