@@ -179,7 +179,10 @@ class CONTACT_EDIT_PG_scene(bpy.types.PropertyGroup):
         description="How strongly the hand's skin is kept out of a closed object (0: not at all)",
     )
     keyframe: bpy.props.BoolProperty(
-        name="Keyframe", description="Key the solved pose on the current frame", default=False
+        name="Keyframe",
+        description="Key every pose Solve, Flex, Wrap and Mirror make on the current frame, from their "
+        "buttons, hotkeys and scripts alike (a script can still say otherwise)",
+        default=False,
     )
     last_solve: bpy.props.StringProperty(name="Last solve", description="How the last solve went")
 

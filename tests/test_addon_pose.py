@@ -252,6 +252,44 @@ def test_solve_operator_recovers_a_pose_and_keys_it(tmp_path):
     assert out["keyed"] == [12.0]
 
 
+def test_keying_follows_the_key_toggle_from_every_entry_point(tmp_path):
+    """Issue 37: the hotkey's solve (no properties set, as its keymap item) ignored the Pose panel's Key
+    toggle, and the pose was lost at the next frame change. Unset, a pose tool keys by the toggle (or by
+    Blender's auto-keying) and says so; a script that says otherwise is obeyed."""
+    out = run_blender(
+        """
+        from contact_edit_addon.ui.keymaps import HOTKEYS
+        settings = scene.contact_edit
+        said = {}
+        for frame, toggle, run in (
+            (5, False, lambda: bpy.ops.contact_edit.solve(stage="ROOT")),
+            (7, True, lambda: bpy.ops.contact_edit.solve(stage="ROOT")),
+            (9, True, lambda: bpy.ops.contact_edit.solve(stage="ROOT", keyframe=False)),
+            (11, False, lambda: bpy.ops.contact_edit.solve(stage="ROOT", keyframe=True)),
+        ):
+            scene.frame_set(frame)
+            settings.keyframe = toggle
+            run()
+            said[frame] = settings.last_solve
+        settings.keyframe = False
+        scene.tool_settings.use_keyframe_insert_auto = True
+        scene.frame_set(13)
+        for bone in armature.pose.bones:
+            bone.select = bone.name.startswith("index")
+        bpy.ops.contact_edit.flex_to_contact()
+        result(dict(keyed=keyed_frames(armature), said=said,
+                    hotkeys={name: dict(props) for name, _, _, props in HOTKEYS}))
+        """,
+        tmp_path,
+        setup=SETUP + MOULD,
+    )
+    assert out["keyed"] == [7.0, 11.0, 13.0]
+    assert "keyed the pose on frame 7" in out["said"]["7"] and "keyed" not in out["said"]["5"]
+    assert "keyed" not in out["said"]["9"]
+    for tool in ("contact_edit.solve", "contact_edit.flex_to_contact"):
+        assert "keyframe" not in out["hotkeys"][tool]
+
+
 def test_a_fresh_solve_starts_from_the_grasp_and_names_a_patch_out_of_reach(tmp_path):
     """Start FRESH solves from the grasp the contacts imply (the root free to travel): it recovers the
     mould's pose; without the root free it says why; a summary names the patch the others keep out of

@@ -144,6 +144,32 @@ class ExplainedPoll:
         return True
 
 
+#: The ``keyframe`` property of the tools that pose the hand (Solve, Flex, Wrap, Mirror Pose).
+KEYFRAME = dict(
+    name="Keyframe",
+    description="Key the pose on the current frame. Left unset (by a hotkey, a button, a script that does "
+    "not say), the Pose panel's Key toggle decides, or Blender's auto-keying when it is on",
+    options={"SKIP_SAVE"},
+)
+
+
+def key_frame(operator, context) -> int | None:
+    """The frame a pose tool keys its pose on, or None: the operator's ``keyframe`` where it was set (a
+    script, the Adjust Last Operation panel), else the scene's Key toggle or Blender's auto-keying, so that
+    every way of starting the tool keys alike."""
+    scene = context.scene
+    if operator.properties.is_property_set("keyframe"):
+        on = operator.keyframe
+    else:
+        on = scene.contact_edit.keyframe or scene.tool_settings.use_keyframe_insert_auto
+    return scene.frame_current if on else None
+
+
+def keyed(frame: int | None, what: str = "the pose") -> str:
+    """What a report adds when a pose tool keyed (nothing when it did not)."""
+    return "" if frame is None else f"; keyed {what} on frame {frame}"
+
+
 class HotkeyTool(ExplainedPoll):
     """For operators that a hotkey starts. When a hotkey's operator cannot run (its poll fails) Blender
     does nothing at all, silently; these leave poll open instead, and their ``invoke`` and ``execute``

@@ -11,7 +11,7 @@ from geodesics import ContactSet, MirrorMap, TriMesh, flip_name, mirror_contacts
 from solver.rig import PoseChannel, mirror_pose
 
 from .. import bridge, store
-from .common import ExplainedPoll, guarded, mesh_object, need_patch
+from .common import KEYFRAME, ExplainedPoll, guarded, key_frame, keyed, mesh_object, need_patch
 
 
 def mirror_space(obj: bpy.types.Object) -> np.ndarray:
@@ -105,9 +105,7 @@ class CONTACT_EDIT_OT_mirror_pose(ExplainedPoll, bpy.types.Operator):
         ],
         default="HAND",
     )
-    keyframe: bpy.props.BoolProperty(
-        name="Keyframe", description="Key the mirrored bones on the current frame"
-    )
+    keyframe: bpy.props.BoolProperty(**KEYFRAME)
 
     @staticmethod
     def why_not(context) -> str | None:
@@ -132,16 +130,18 @@ class CONTACT_EDIT_OT_mirror_pose(ExplainedPoll, bpy.types.Operator):
         pose = {b.name: PoseChannel.from_object(b) for b in armature.pose.bones}
         after = mirror_pose(pose, selected=chosen)
         changed = [n for n in dict.fromkeys(flip_name(c) for c in chosen) if n in after]
+        frame = key_frame(self, context)
         for name in changed:
             pose_bone = armature.pose.bones[name]
             after[name].apply_to(pose_bone)
-            if self.keyframe:
+            if frame is not None:
                 for path in ("location", bridge.rotation_path(pose_bone.rotation_mode), "scale"):
-                    pose_bone.keyframe_insert(path, frame=context.scene.frame_current, group=name)
+                    pose_bone.keyframe_insert(path, frame=frame, group=name)
         self.report(
             {"INFO"},
             f"Mirrored {len(chosen)} bones onto {len(changed)}: {', '.join(changed[:4])}"
-            + (", …" if len(changed) > 4 else ""),
+            + (", …" if len(changed) > 4 else "")
+            + keyed(frame, "them"),
         )
         return {"FINISHED"}
 

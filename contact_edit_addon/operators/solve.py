@@ -14,7 +14,7 @@ import numpy as np
 
 from .. import bridge, posing, preferences, store
 from .background import Background, Feed, Live, Plan
-from .common import HotkeyTool, guarded, need_hand_and_object
+from .common import KEYFRAME, HotkeyTool, guarded, key_frame, keyed, need_hand_and_object
 
 #: Viewport refreshes per second while solving.
 REDRAW_RATE = 30.0
@@ -38,7 +38,7 @@ class CONTACT_EDIT_OT_solve(Background, HotkeyTool, bpy.types.Operator):
 
     stage: bpy.props.EnumProperty(name="Solve", items=posing.STAGES, default="ALL")
     start: bpy.props.EnumProperty(name="Start", items=posing.STARTS, default="AUTO")
-    keyframe: bpy.props.BoolProperty(name="Keyframe", description="Key the solved pose on the current frame")
+    keyframe: bpy.props.BoolProperty(**KEYFRAME)
     max_evaluations: bpy.props.IntProperty(
         name="Evaluations", default=2000, min=1, description="Stop after this many energy evaluations"
     )
@@ -95,9 +95,9 @@ class CONTACT_EDIT_OT_solve(Background, HotkeyTool, bpy.types.Operator):
         return Plan("Solving", work, commit, live=live, thread="contact-edit solve")
 
     def _finish(self, context, problem, result, outcome: str | None = None) -> None:
-        frame = context.scene.frame_current if self.keyframe else None
+        frame = key_frame(self, context)
         problem, result = posing.settle(context.scene, problem, result, self.stage, frame)
-        message = posing.summary(context.scene, problem, result, outcome)
+        message = posing.summary(context.scene, problem, result, outcome) + keyed(frame)
         off = posing.rig_mismatch(context.scene, problem, result.theta)
         if off:
             message += f"; {off}"
@@ -136,7 +136,7 @@ class CONTACT_EDIT_OT_flex_to_contact(HotkeyTool, bpy.types.Operator):
         ],
         default="TOGETHER",
     )
-    keyframe: bpy.props.BoolProperty(name="Keyframe", description="Key the pose on the current frame")
+    keyframe: bpy.props.BoolProperty(**KEYFRAME)
 
     why_not = staticmethod(need_hand_and_object)
 
@@ -145,7 +145,8 @@ class CONTACT_EDIT_OT_flex_to_contact(HotkeyTool, bpy.types.Operator):
         sign = 1 if self.direction == "POSITIVE" else -1
         curl = "in turn" if self.joints == "IN_TURN" else "together"
         posed, result = posing.flex(context.scene, sign, curl)
-        bridge.apply_pose(posed, result.theta, context.scene.frame_current if self.keyframe else None)
+        frame = key_frame(self, context)
+        bridge.apply_pose(posed, result.theta, frame)
         scene, target = context.scene, context.scene.contact_edit.target.name
         scale = bridge.uniform_scale(posed.armature_object())
         reached = [name for name, hit in result.touching.items() if hit]
@@ -159,7 +160,7 @@ class CONTACT_EDIT_OT_flex_to_contact(HotkeyTool, bpy.types.Operator):
             message += f"; inside it already before curling: {depths}"
         if missed:
             message += f"; curled fully without touching: {', '.join(missed)}"
-        self.report({"INFO"} if reached and not inside else {"WARNING"}, message)
+        self.report({"INFO"} if reached and not inside else {"WARNING"}, message + keyed(frame))
         return {"FINISHED"}
 
 

@@ -166,16 +166,13 @@ class VIEW3D_PT_contact_edit_pose(SubPanel, bpy.types.Panel):
         layout = self.layout
         settings = context.scene.contact_edit
         row = layout.row(align=True)
+        # The tools key by the Key toggle themselves (as from their hotkeys): the buttons do not say.
         for stage, label, _ in posing.STAGES:
-            solve = row.operator("contact_edit.solve", text=label.split()[0])
-            solve.stage, solve.keyframe = stage, settings.keyframe
+            row.operator("contact_edit.solve", text=label.split()[0]).stage = stage
         row = layout.row(align=True)
         for joints, label in (("TOGETHER", "Flex"), ("IN_TURN", "Wrap")):
-            flex = row.operator("contact_edit.flex_to_contact", text=label, icon="VIEW_PAN")
-            flex.joints, flex.keyframe = joints, settings.keyframe
-        row.operator(
-            "contact_edit.mirror_pose", text="Mirror", icon="MOD_MIRROR"
-        ).keyframe = settings.keyframe
+            row.operator("contact_edit.flex_to_contact", text=label, icon="VIEW_PAN").joints = joints
+        row.operator("contact_edit.mirror_pose", text="Mirror", icon="MOD_MIRROR")
         row.prop(settings, "keyframe", text="Key", toggle=True, icon="KEY_HLT")
         if settings.last_solve:
             draw_message(context, layout, settings.last_solve.split("; "), "INFO")
