@@ -244,6 +244,30 @@ def test_a_pair_keeps_one_colour_through_transfers_in_any_order_and_edits(tmp_pa
     assert picked["contact.001"] == picked["contact.001@b"] == edited["contact.001"]
 
 
+def test_each_pose_button_has_its_own_tooltip(tmp_path):
+    """Issue 37: Root, Fingers, All and Selected read the same tooltip, and so did Flex and Wrap: each
+    now says what its stage frees or how it curls (Blender asks the operator's ``description``)."""
+    out = run_blender(
+        """
+        from types import SimpleNamespace
+        from contact_edit_addon import posing
+        from contact_edit_addon.operators.solve import CONTACT_EDIT_OT_solve, CONTACT_EDIT_OT_flex_to_contact
+        solve = {key: CONTACT_EDIT_OT_solve.description(bpy.context, SimpleNamespace(stage=key))
+                 for key, _, _ in posing.STAGES}
+        flex = {j: CONTACT_EDIT_OT_flex_to_contact.description(bpy.context, SimpleNamespace(joints=j))
+                for j in ("TOGETHER", "IN_TURN")}
+        result(dict(solve=solve, flex=flex, stages={key: text for key, _, text in posing.STAGES}))
+        """,
+        tmp_path,
+        setup=SETUP,
+    )
+    assert len(set(out["solve"].values())) == 4 and len(set(out["flex"].values())) == 2
+    for key, text in out["stages"].items():
+        assert out["solve"][key].startswith("Pose the hand's armature so that its contact patches meet")
+        assert out["solve"][key].endswith(f"on the object. {text}")
+    assert "fingertips close first" in out["flex"]["TOGETHER"] and "wrap" in out["flex"]["IN_TURN"]
+
+
 def test_brush_strokes_become_points_inside_faces(tmp_path):
     out = run_blender(
         """

@@ -43,7 +43,7 @@ RUN_BY = {
 #: The README's tool names for the operators that have hotkeys.
 TOOLS = {
     "Paint": "contact_edit.paint", "Axis": "contact_edit.axis", "Transfer": "contact_edit.transfer",
-    "Translate": "contact_edit.translate", "Rotate": "contact_edit.rotate", "Bend": "contact_edit.bend",
+    "Move": "contact_edit.translate", "Turn": "contact_edit.rotate", "Bend": "contact_edit.bend",
     "Solve": "contact_edit.solve", "Flex to contact": "contact_edit.flex_to_contact",
     "Key device pose": "contact_edit.device_key",
 }  # fmt: skip

@@ -94,8 +94,8 @@ class CONTACT_EDIT_OT_translate(_PatchEdit, bpy.types.Operator):
     """Slide a contact patch over its surface (its children follow)"""
 
     bl_idname = "contact_edit.translate"
-    bl_label = "Translate Contact"
-    hint = "Translate: move the mouse over the surface · click to confirm · Esc cancels"
+    bl_label = "Move Contact"
+    hint = "Move: move the mouse over the surface · click to confirm · Esc cancels"
 
     location: bpy.props.FloatVectorProperty(
         name="To",
@@ -120,8 +120,8 @@ class CONTACT_EDIT_OT_rotate(_PatchEdit, bpy.types.Operator):
     """Turn a contact patch about the first point of its axis (its children follow)"""
 
     bl_idname = "contact_edit.rotate"
-    bl_label = "Rotate Contact"
-    hint = "Rotate: move the mouse left or right · click to confirm · Esc cancels"
+    bl_label = "Turn Contact"
+    hint = "Turn: move the mouse left or right · click to confirm · Esc cancels"
 
     angle: bpy.props.FloatProperty(
         name="Angle", subtype="ANGLE", description="Counter-clockwise on the surface"

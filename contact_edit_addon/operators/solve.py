@@ -45,6 +45,12 @@ class CONTACT_EDIT_OT_solve(Background, HotkeyTool, bpy.types.Operator):
 
     why_not = staticmethod(need_pairs)
 
+    @classmethod
+    def description(cls, context, properties) -> str:
+        """Each stage's button says what it frees (the panel's Root, Fingers, All and Selected)."""
+        stage = next(text for key, _, text in posing.STAGES if key == properties.stage)
+        return f"{cls.__doc__}. {stage}"
+
     @guarded
     def execute(self, context):
         return self.now(context, self._plan(context))
@@ -113,6 +119,13 @@ class CONTACT_EDIT_OT_solve(Background, HotkeyTool, bpy.types.Operator):
         return {"CANCELLED"}
 
 
+#: How Flex to Contact curls a chain's joints: the panel's Flex and Wrap.
+CURLS = (
+    ("TOGETHER", "Together", "Curl a chain's joints together: the fingertips close first"),
+    ("IN_TURN", "In turn", "Curl one joint at a time from the first: the fingers wrap the object"),
+)
+
+
 class CONTACT_EDIT_OT_flex_to_contact(HotkeyTool, bpy.types.Operator):
     """Curl the selected finger bones until they touch the object (a quick first grip)"""
 
@@ -128,17 +141,16 @@ class CONTACT_EDIT_OT_flex_to_contact(HotkeyTool, bpy.types.Operator):
         ],
         default="POSITIVE",
     )
-    joints: bpy.props.EnumProperty(
-        name="Joints",
-        items=[
-            ("TOGETHER", "Together", "Curl a chain's joints together: the fingertips close first"),
-            ("IN_TURN", "In turn", "Curl one joint at a time from the first: the fingers wrap the object"),
-        ],
-        default="TOGETHER",
-    )
+    joints: bpy.props.EnumProperty(name="Joints", items=CURLS, default="TOGETHER")
     keyframe: bpy.props.BoolProperty(**KEYFRAME)
 
     why_not = staticmethod(need_hand_and_object)
+
+    @classmethod
+    def description(cls, context, properties) -> str:
+        """Flex and Wrap say how each curls."""
+        joints = next(text for key, _, text in CURLS if key == properties.joints)
+        return f"{cls.__doc__}. {joints}"
 
     @guarded
     def execute(self, context):
