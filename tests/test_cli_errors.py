@@ -300,3 +300,79 @@ def test_outputs_are_compared_with_inputs_as_files(tmp_path):
     with pytest.raises(FileExistsError, match=r"inside .*, which this command fills with its work"):
         check_outputs([], {scene: "the scene"}, folders=[tmp_path.parent])
     check_outputs([], {scene: "the scene"}, folders=[tmp_path / "frames"])
+
+
+def never(*args, **kwargs):
+    raise AssertionError("the work started before the options were checked")
+
+
+# Every count option, with a value it refuses and what it says (argparse: exit status 2, before any work).
+REFUSED_COUNTS = [
+    (["bench", "geodesics", "--rays", "0"], "argument --rays: must be at least 1, got 0"),
+    (["bench", "geodesics", "--repeat", "-3"], "argument --repeat: must be at least 1, got -3"),
+    (["bench", "layouts", "--per-bin", "0"], "argument --per-bin: must be at least 1, got 0"),
+    (["bench", "retarget", "--frames", "0"], "argument --frames: must be at least 1, got 0"),
+    (["bench", "solver", "--repeat", "two"], "argument --repeat: 'two' is not a whole number"),
+    (["synthesize", "m.npz", "--frames", "0"], "argument --frames: must be at least 1, got 0"),
+    (["retarget", "m.npz", "--target", "alien", "-o", "out", "--workers", "0"],
+     "argument --workers: must be at least 1, got 0"),
+    (["retarget", "m.npz", "--target", "alien", "-o", "out", "--workers", "-2"],
+     "argument --workers: must be at least 1, got -2"),
+    (["retarget", "m.npz", "--target", "alien", "-o", "out", "--control", "0"],
+     "argument --control: must be at least 4 (a cubic spline's degree + 1), got 0"),
+    (["retarget", "m.npz", "--target", "alien", "-o", "out", "--control", "-1"],
+     "argument --control: must be at least 4 (a cubic spline's degree + 1), got -1"),
+    (["retarget", "m.npz", "--target", "alien", "-o", "out", "--control", "2"],
+     "argument --control: must be at least 4 (a cubic spline's degree + 1), got 2"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("args, said", REFUSED_COUNTS, ids=[" ".join(a[-2:]) for a, _ in REFUSED_COUNTS])
+def test_count_options_refuse_counts_below_their_least_before_any_work(
+    args, said, tmp_path, capsys, monkeypatch
+):
+    """Issue 39: ``--rays 0`` ended in a numpy broadcasting error, ``--control 2`` only after every
+    frame's solve, ``--control 0`` and ``--workers 0`` silently meant the default."""
+    from geodesics import benchmark
+    from solver import benchmark as solver_benchmark
+    from solver import layout_benchmark
+    from solver.retarget import benchmark as retarget_benchmark
+    from solver.retarget import pipeline, synthetic
+
+    for module in (benchmark, layout_benchmark, solver_benchmark, retarget_benchmark):
+        monkeypatch.setattr(module, "run", never)
+    monkeypatch.setattr(synthetic, "generate", never)
+    monkeypatch.setattr(pipeline, "retarget", never)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exit_:
+        main(args)
+    assert exit_.value.code == 2
+    assert capsys.readouterr().err.splitlines()[-1].endswith(f": error: {said}")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_every_count_option_is_checked_by_the_shared_count_type():
+    """No option parses a count with a bare ``int`` (which takes 0 and negatives); the only whole numbers
+    that may be anything are a frame number and a seed. The spline's least count is the solver's."""
+    import argparse
+
+    from contact_edit_addon.commands import cli
+    from solver.retarget.spline import DEGREE
+
+    parser = cli.build_parser()
+    [commands] = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    counted, free = set(), set()
+    for name, sub in commands.choices.items():
+        for action in sub._actions:
+            if getattr(action.type, "__name__", None) == "count":
+                counted.add(f"{name} {action.option_strings[0]}")
+            elif action.type is int:
+                free.add(f"{name} {action.option_strings[0]}")
+    assert free == {"pose --frame", "synthesize --seed"}
+    assert counted == {
+        "bench --repeat", "bench --rays", "bench --frames", "bench --per-bin", "synthesize --frames",
+        "retarget --workers", "retarget --control",
+    }  # fmt: skip
+    assert cli._SPLINE_LEAST == DEGREE + 1
+    args = parser.parse_args(["retarget", "m.npz", "--target", "alien", "-o", "out", "--control", "4"])
+    assert args.control == 4 and args.workers is None  # absent: the default, decided by the pipeline

@@ -132,3 +132,18 @@ def test_workers_leave_ctrl_c_to_the_process_that_started_them(tmp_path):
 def test_a_worker_that_dies_is_a_clear_error_naming_the_main_guard(tmp_path):
     with pytest.raises(SolverError, match='if __name__ == "__main__"'):
         run_frames(die, None, tasks(2), FrameStore(tmp_path, RUN), workers=2)
+
+
+@pytest.mark.parametrize("workers", [0, -2, 1.5, True])
+def test_a_worker_count_below_one_is_refused_not_taken_for_the_default(tmp_path, workers):
+    """Issue 39: ``workers=0`` used to mean one per CPU and a negative count one process."""
+    with pytest.raises(SolverError, match=f"workers must be a whole number of at least 1 .*got {workers!r}"):
+        run_frames(square_plus_offset, {"offset": 0.5}, tasks(2), FrameStore(tmp_path, RUN), workers=workers)
+    assert not list(tmp_path.glob("*.npz"))  # nothing solved
+
+
+def test_a_retarget_refuses_a_bad_worker_count_before_any_stage():
+    from solver.retarget import retarget
+
+    with pytest.raises(SolverError, match="workers must be a whole number of at least 1"):
+        retarget(None, None, None, workers=0)  # checked before the motion, hand or annotation is looked at

@@ -52,6 +52,26 @@ class _InputError(Exception):
     """Bad input the command line itself finds (an output path that cannot be written, …)."""
 
 
+def _count(least: int = 1, why: str = "") -> Callable[[str], int]:
+    """The argparse type of every count option: a whole number of at least ``least`` (1 unless ``why``,
+    in parentheses after the figure, says what needs more). An absent option keeps its default (None:
+    the command's own choice); a given 0 is never taken for "the default"."""
+
+    def count(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if value < least:
+            raise argparse.ArgumentTypeError(
+                f"must be at least {least}{f' ({why})' if why else ''}, got {value}"
+            )
+        return value
+
+    count.__name__ = "count"  # what argparse calls the type in its own messages
+    return count
+
+
 def _output_file(path: str) -> None:
     """Refuse an output file that cannot be written before any work is done."""
     from pathlib import Path
@@ -356,9 +376,10 @@ def _median(counts) -> float:
 #: The retarget's folder of per-frame results, inside its output folder.
 _FRAMES = "frames"
 
-# solver.retarget.grab.GRAB_FPS and solver.retarget.pairing.DEFAULT_CUTOFF, spelled out so that building
-# the parser does not import the solver (a test checks they agree).
-_GRAB_FPS, _CUTOFF = 120.0, 0.01
+# solver.retarget.grab.GRAB_FPS, solver.retarget.pairing.DEFAULT_CUTOFF and the fewest control points per
+# DOF the spline fit takes (solver.retarget.spline.DEGREE + 1), spelled out so that building the parser
+# does not import the solver (a test checks they agree).
+_GRAB_FPS, _CUTOFF, _SPLINE_LEAST = 120.0, 0.01, 4
 
 
 def _import_grab(args: argparse.Namespace) -> int:
@@ -562,10 +583,12 @@ def _bench_parser(command: _Subcommand) -> None:
         choices=["geodesics", "contacts", "solver", "layouts", "rigs", "operators", "tangible", "retarget"],
         help="what to benchmark",
     )
-    bench.add_argument("--repeat", type=int, default=7, help="runs per timing (the median is shown)")
-    bench.add_argument("--rays", type=int, default=2000, help="geodesics: rays / targets per query")
-    bench.add_argument("--frames", type=int, default=1000, help="retarget: frames of the motion")
-    bench.add_argument("--per-bin", type=int, default=1, help="layouts: layouts per object and bin of turn")
+    bench.add_argument("--repeat", type=_count(), default=7, help="runs per timing (the median is shown)")
+    bench.add_argument("--rays", type=_count(), default=2000, help="geodesics: rays / targets per query")
+    bench.add_argument("--frames", type=_count(), default=1000, help="retarget: frames of the motion")
+    bench.add_argument(
+        "--per-bin", type=_count(), default=1, help="layouts: layouts per object and bin of turn"
+    )
     bench.add_argument(
         "--paper",
         action="store_true",
@@ -659,7 +682,7 @@ def _synthesize_parser(command: _Subcommand) -> None:
         "--object", default="mug", choices=["mug", "cylinder", "box", "sphere"],
         help="the object the hand manipulates",
     )  # fmt: skip
-    synth.add_argument("--frames", type=int, default=600, help="frame count")
+    synth.add_argument("--frames", type=_count(), default=600, help="frame count")
     synth.add_argument("--fps", type=float, default=120.0, help="frame rate")
     synth.add_argument("--seed", type=int, default=0, help="draws the motion's variations")
     synth.add_argument("--scale", type=float, default=1.0, help="scale of the whole scene")
@@ -717,11 +740,14 @@ def _retarget_parser(command: _Subcommand) -> None:
     ret.add_argument(
         "--annotation", help="the hand pair's annotation, .json (default: made for procedural hands)"
     )
-    ret.add_argument("--workers", type=int, help="worker processes (default: one per CPU)")
+    ret.add_argument("--workers", type=_count(), help="worker processes (default: one per CPU)")
     ret.add_argument(
         "--scheduler", help="address of a Dask scheduler to send the frames to (default: none, solve here)"
     )
-    ret.add_argument("--control", type=int, help="spline control points per DOF (default: 10 per second)")
+    ret.add_argument(
+        "--control", type=_count(_SPLINE_LEAST, "a cubic spline's degree + 1"),
+        help="spline control points per DOF (default: 10 per second)",
+    )  # fmt: skip
     ret.add_argument(
         "--weight", action="append", type=_weight, metavar="NAME=VALUE",
         help="an Eq. 3 weight: m (markers), c (contacts), cd, cn, t (table), j (prior); repeatable "
@@ -794,8 +820,6 @@ def _interrupted(args: argparse.Namespace) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if getattr(args, "repeat", 1) < 1:
-        parser.error("--repeat must be at least 1")
     name = _command(args)
     try:
         return args.run(args)

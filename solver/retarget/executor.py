@@ -21,6 +21,7 @@ import zipfile
 from collections.abc import Callable, Mapping
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from numbers import Integral
 from pathlib import Path
 from typing import Any
 
@@ -135,12 +136,13 @@ def run_frames(
     store : FrameStore
         Where results go as they finish; frames already there are not solved again.
     workers : int, optional
-        Worker processes on this machine (default: one per CPU; 1 solves in this process).
+        Worker processes on this machine, at least 1 (default: one per CPU; 1 solves in this process).
     scheduler : str, optional
         Address of a Dask distributed scheduler (``"tcp://host:8786"``) to send the tasks to instead.
     progress : callable, optional
         ``progress(done, total)`` after each frame (frames found in the store count as done).
     """
+    check_workers(workers)
     done = store.done() & set(tasks)
     todo = [f for f in tasks if f not in done]
     total = len(tasks)
@@ -154,6 +156,17 @@ def run_frames(
                 solve, shared, tasks, todo, store, workers or os.cpu_count() or 1, report, total, len(done)
             )
     return {f: store.load(f) for f in sorted(tasks)}
+
+
+def check_workers(workers) -> None:
+    """Refuse a worker count that is not a whole number of at least 1 (None, the default, is fine): 0
+    is not "the default", nor a negative count one process."""
+    if workers is not None and (
+        not isinstance(workers, Integral) or isinstance(workers, bool) or workers < 1
+    ):
+        raise SolverError(
+            f"workers must be a whole number of at least 1 or None for one per CPU, got {workers!r}"
+        )
 
 
 def _run_locally(solve, shared, tasks, todo, store, workers, report, total, done) -> None:
