@@ -79,7 +79,22 @@ def _objects(scene: bpy.types.Scene) -> tuple[bpy.types.Object, bpy.types.Object
     settings = scene.contact_edit
     if settings.hand is None or settings.target is None:
         raise bridge.BridgeError("choose the hand and the object in the Contact tab first")
+    same = of_the_hand(settings.hand, settings.target)
+    if same is not None:
+        raise bridge.BridgeError(
+            f"the object '{settings.target.name}' is {same}; choose the mesh the hand touches as the object"
+        )
     return settings.hand, settings.target
+
+
+def of_the_hand(hand: bpy.types.Object, target: bpy.types.Object) -> str | None:
+    """What ``target`` is of the hand, in words, when it is the hand itself or the armature that deforms
+    it (a solve would pose the hand against its own skin: nothing to touch); None for any other object."""
+    if target == hand:
+        return "the hand itself"
+    if target == hand.find_armature() or (target.type == "ARMATURE" and target == hand.parent):
+        return "the hand's armature"
+    return None
 
 
 def contact_pairs(hand_set, object_set) -> tuple[SurfacePoints, SurfacePoints, list[tuple[str, str]]]:

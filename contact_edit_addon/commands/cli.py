@@ -342,7 +342,7 @@ def _pose(args: argparse.Namespace) -> int:
                 progress=lambda done, total, energy: bars("solving", done, total, f"energy {energy:.4g}"),
                 quiet=not args.debug,
             )  # fmt: skip
-        except batch.SceneChoiceError as err:  # in the command line's words
+        except (batch.SceneChoiceError, batch.ObjectChoiceError) as err:  # in the command line's words
             raise BridgeError(err.message("--hand NAME", "--object NAME")) from err
     print(f"contact-edit pose: {summary}")
     print(f"  saved {args.output}")
