@@ -188,25 +188,69 @@ def test_the_retarget_titles_its_plot(tmp_path, capsys, monkeypatch):
 
 
 def test_synthesize_replaces_an_existing_file_only_with_overwrite(tmp_path, capsys, monkeypatch):
-    """Issue 39: ``synthesize copy.blend`` wrote a motion over a .blend without asking."""
+    """Issue 39: ``synthesize copy.blend`` wrote a motion over a .blend without asking; now a motion is
+    only ever written as .npz, and an existing one replaced only with --overwrite."""
     from solver.retarget import synthetic
 
     blend = tmp_path / "copy.blend"
     blend.write_bytes(b"BLENDER-v500 a scene to keep")
     generate = synthetic.generate
     monkeypatch.setattr(synthetic, "generate", interrupt)  # nothing generated before the check
-    assert main(["synthesize", str(blend), "--frames", "60"]) == 1
-    assert one_line(capsys.readouterr().err) == (
-        f"contact-edit synthesize: {blend} exists; choose another output, or pass --overwrite to replace it"
-    )
+    for overwrite in ([], ["--overwrite"]):
+        assert main(["synthesize", str(blend), "--frames", "60", *overwrite]) == 1
+        assert one_line(capsys.readouterr().err) == (
+            f"contact-edit synthesize: {blend}: the output is written as a .npz file, so its name must end "
+            "in .npz (e.g. copy.npz)"
+        )
     assert blend.read_bytes() == b"BLENDER-v500 a scene to keep"
+    motion = tmp_path / "old.npz"
+    motion.write_bytes(b"PK a motion to keep")
+    assert main(["synthesize", str(motion), "--frames", "60"]) == 1
+    assert one_line(capsys.readouterr().err) == (
+        f"contact-edit synthesize: {motion} exists; choose another output, or pass --overwrite to replace it"
+    )
+    assert motion.read_bytes() == b"PK a motion to keep"
     monkeypatch.setattr(synthetic, "generate", generate)
-    args = ["synthesize", str(blend), "--object", "sphere", "--frames", "44", "--density", "2", "--overwrite"]
+    args = [
+        "synthesize",
+        str(motion),
+        "--object",
+        "sphere",
+        "--frames",
+        "44",
+        "--density",
+        "2",
+        "--overwrite",
+    ]
     assert main(args) == 0
-    assert f"saved {blend}" in capsys.readouterr().out
+    assert f"saved {motion}" in capsys.readouterr().out
     from solver.retarget import Motion
 
-    assert Motion.load(blend).n_frames == 44
+    assert Motion.load(motion).n_frames == 44
+
+
+@pytest.mark.parametrize(
+    "name, hint", [("o11.txt", "o11.npz"), ("o11", "o11.npz"), ("motion.npz.tmp", "motion.npz")]
+)
+def test_a_motion_output_named_with_another_extension_is_refused_before_any_work(
+    name, hint, tmp_path, capsys, monkeypatch
+):
+    """Issue 39: ``-o o11.txt`` wrote a file whose name hides its format. synthesize and import-grab
+    write a motion (.npz, any case)."""
+    from solver.retarget import synthetic
+
+    monkeypatch.setattr(synthetic, "generate", never)
+    monkeypatch.chdir(tmp_path)
+    said = f"{name}: the output is written as a .npz file, so its name must end in .npz (e.g. {hint})"
+    assert main(["synthesize", name]) == 1
+    assert one_line(capsys.readouterr().err) == f"contact-edit synthesize: {said}"
+    grab = ["import-grab", "grab.npz", "--hand-mesh", "h.obj", "--object-mesh", "o.obj", "-o", name]
+    assert main(grab) == 1
+    assert one_line(capsys.readouterr().err) == f"contact-edit import-grab: {said}"
+    assert list(tmp_path.iterdir()) == []
+    from contact_edit_addon.commands.outputs import check_outputs
+
+    check_outputs([tmp_path / "UPPER.NPZ"], {}, suffix=".npz")  # the extension in any case
 
 
 def test_a_retarget_never_writes_over_its_inputs_even_with_overwrite(tmp_path, capsys, monkeypatch):

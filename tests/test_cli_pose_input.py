@@ -241,3 +241,21 @@ def test_posing_the_hand_against_itself_or_its_armature_is_refused_before_solvin
         "the object 'Hand' is the hand itself; choose the mesh the hand touches as the object",
         "the object 'Hand rig' is the hand's armature; choose the mesh the hand touches as the object",
     ]
+
+
+def test_a_posed_scene_is_only_written_under_a_blend_name(files, tmp_path):
+    """Issue 39: ``pose … -o o11.txt`` wrote a .blend named .txt. Refused before the scene is opened (an
+    output named so, even one that exists, is kept as it is, --overwrite or not)."""
+    (tmp_path / "o11.txt").write_bytes(PREVIOUS)
+    for name, overwrite in (("o11.txt", ["--overwrite"]), ("posed", [])):
+        done = contact_edit(
+            "pose", str(files / "tiny.blend"), "-o", name, *overwrite, cwd=tmp_path, user_dir=files / "user"
+        )
+        assert done.returncode == 1 and done.stdout == ""
+        assert done.stderr.splitlines() == [
+            f"contact-edit pose: {tmp_path / name}: the output is written as a .blend file, so its name must "
+            f"end in .blend (e.g. {Path(name).stem}.blend)"
+        ]
+    assert [p.name for p in tmp_path.iterdir()] == ["o11.txt"] and (
+        tmp_path / "o11.txt"
+    ).read_bytes() == PREVIOUS

@@ -134,7 +134,7 @@ def pose_scene(
     if not output.parent.is_dir():
         raise BridgeError(f"{output.parent}: no such folder for the output")
     inputs = {scene_path: "the input scene", contacts: "the pairing file (--contacts)"}
-    check_outputs([output], inputs, overwrite=overwrite, error=BridgeError)
+    check_outputs([output], inputs, overwrite=overwrite, error=BridgeError, suffix=".blend")
     _open(scene_path, quiet)
     scene = bpy.context.scene
     settings = scene.contact_edit

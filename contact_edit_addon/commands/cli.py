@@ -32,7 +32,8 @@ Subcommands:
 
 No command writes over one of its input files, even with ``--overwrite``, nor replaces an existing
 output file without ``--overwrite`` (:mod:`.outputs`; a retarget's folder holding its run's frames is
-that run's own, which it resumes); ``build-extension`` replaces the zips of the version it builds.
+that run's own, which it resumes); ``build-extension`` replaces the zips of the version it builds. An
+output file has its format's extension (``pose``: .blend; ``synthesize``, ``import-grab``: .npz).
 
 Errors in the input end a command with one line on stderr, ``contact-edit <command>: <what is wrong>``,
 and exit status 1 (``--debug`` adds the traceback); Ctrl-C ends it with a line saying what is kept and
@@ -353,7 +354,7 @@ def _synthesize(args: argparse.Namespace) -> int:
     from solver.retarget import synthetic
 
     _output_file(args.output)
-    _check_outputs([args.output], {}, args.overwrite)
+    _check_outputs([args.output], {}, args.overwrite, suffix=".npz")
     with _StageBars() as bars:
         motion = synthetic.generate(
             args.object, frames=args.frames, fps=args.fps, seed=args.seed, scale=args.scale,
@@ -392,7 +393,7 @@ def _import_grab(args: argparse.Namespace) -> int:
         args.hand_mesh: "the hand mesh (--hand-mesh)",
         args.object_mesh: "the object mesh (--object-mesh)",
     }
-    _check_outputs([args.output], inputs, args.overwrite, instead="choose another output (-o)")
+    _check_outputs([args.output], inputs, args.overwrite, instead="choose another output (-o)", suffix=".npz")
     hand_mesh = load_mesh(args.hand_mesh)
     object_mesh = load_mesh(args.object_mesh)
     motion = grab.load_grab(args.motion, hand_mesh, object_mesh, fps=args.fps, pair=False)
