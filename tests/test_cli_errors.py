@@ -125,6 +125,37 @@ def test_ctrl_c_elsewhere_ends_with_one_line_and_status_130(tmp_path, capsys, mo
     assert err.splitlines()[-1] == "contact-edit synthesize: interrupted"
 
 
+def test_sigterm_ends_a_command_as_ctrl_c_does_with_status_143(tmp_path, capsys, monkeypatch):
+    """Issue 39: SIGTERM takes the Ctrl-C path (the same line; status 128 + 15), and the command's
+    handler is only the command's: the caller's is back afterwards."""
+    import signal
+    import time
+
+    from solver.retarget import pipeline
+
+    def terminated(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(10)  # the handler raises well before
+        raise AssertionError("SIGTERM did not interrupt the command")
+
+    def callers(signum, frame):  # this process's own handler (the default would end the test run)
+        raise AssertionError("SIGTERM reached the caller's handler, not the command's")
+
+    fake_motion(monkeypatch)
+    monkeypatch.setattr(pipeline, "retarget", terminated)
+    before = signal.signal(signal.SIGTERM, callers)
+    try:
+        out = tmp_path / "out"
+        assert main(["retarget", "grasp.npz", "--target", "alien", "-o", str(out)]) == 143
+        assert one_line(capsys.readouterr().err) == (
+            "contact-edit retarget: interrupted; run the same command again to resume "
+            f"(solved frames are kept in {out / 'frames'})"
+        )
+        assert signal.getsignal(signal.SIGTERM) is callers
+    finally:
+        signal.signal(signal.SIGTERM, before)
+
+
 class FakeRetarget:
     """What the CLI reads of a retarget's result."""
 

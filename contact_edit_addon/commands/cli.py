@@ -37,16 +37,20 @@ output file has its format's extension (``pose``: .blend; ``synthesize``, ``impo
 
 Errors in the input end a command with one line on stderr, ``contact-edit <command>: <what is wrong>``,
 and exit status 1 (``--debug`` adds the traceback); Ctrl-C ends it with a line saying what is kept and
-exit status 130. Progress goes to stderr: bars on a terminal, plain periodic lines elsewhere.
+exit status 130, SIGTERM with the same line and exit status 143. Progress goes to stderr: bars on a
+terminal, plain periodic lines elsewhere.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib.util
+import signal
 import sys
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 
 class _InputError(Exception):
@@ -818,19 +822,45 @@ def _interrupted(args: argparse.Namespace) -> str:
     return "interrupted"
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, a service manager, a job scheduler's time limit), raised where the command is so
+    that it ends as Ctrl-C does: worker processes stopped and joined, what is solved kept, one line."""
+
+
+def _terminate(signum, frame) -> None:
+    raise _Terminated
+
+
+@contextlib.contextmanager
+def _sigterm_as_ctrl_c() -> Iterator[None]:
+    """While the block runs (in the main thread: only it can set handlers), SIGTERM raises
+    :class:`_Terminated`, a KeyboardInterrupt. Killed by the default action instead, the process would
+    run no cleanup: its worker processes' queues and semaphores would be left to the resource tracker,
+    which prints "leaked semaphore objects", and nothing would say what is kept."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     name = _command(args)
     try:
-        return args.run(args)
-    except KeyboardInterrupt:
+        with _sigterm_as_ctrl_c():
+            return args.run(args)
+    except KeyboardInterrupt as err:
         if args.debug:
             import traceback
 
             traceback.print_exc()
         print(f"contact-edit {name}: {_interrupted(args)}", file=sys.stderr, flush=True)
-        return 130
+        return 128 + signal.SIGTERM if isinstance(err, _Terminated) else 130
     except Exception as err:
         if args.debug:
             import traceback

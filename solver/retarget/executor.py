@@ -102,12 +102,17 @@ _worker_shared: Any = None
 
 
 def _start_worker(shared: Any) -> None:
-    """A worker's start: it keeps the shared data, and leaves Ctrl-C to the process that started it (a
-    terminal's Ctrl-C reaches every process of its group: workers would die mid-frame, each with its
-    own traceback; instead the caller stops handing out frames and the workers finish theirs)."""
+    """A worker's start: it keeps the shared data, and leaves Ctrl-C and SIGTERM to the process that
+    started it. A terminal's Ctrl-C reaches every process of its group, and so does the SIGTERM of
+    ``timeout`` or of a service manager: workers would die mid-frame, each with its own traceback, and
+    the frames queued for them would fill the pipe to them, which then no process reads, so that the
+    caller could not shut the pool down. Instead the caller stops handing out frames, the workers finish
+    those already sent to them, and the pool's shutdown ends them: each then reads its end-of-work
+    marker (also when another worker died and the pool is broken)."""
     global _worker_shared
     _worker_shared = shared
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
 def _call_with_worker_shared(solve: Callable[[Any, Any], Result], task: Any) -> Result:
