@@ -83,6 +83,31 @@ def test_the_demo_command_does_what_the_readme_says(demo):
     assert {p.name for p in folder.iterdir()} >= {"demo.blend", "demo.png", "contacts.json"}
 
 
+def test_every_install_is_from_the_checkout_with_extras_it_defines():
+    """Issue 39: ``pip install "contact-edit[cluster]"`` fails, as the package is on no index. Every
+    install of an extra the README or a message of the code tells of is the checkout's,
+    ``pip install -e ".[extra]"``, of an extra that pyproject.toml defines."""
+    import tomllib
+
+    root = readme.README.parent
+    extras = set(tomllib.loads((root / "pyproject.toml").read_text())["project"]["optional-dependencies"])
+    texts = {"README.md": README}
+    for package in ("contact_edit_addon", "geodesics", "solver", "tangible"):
+        texts |= {
+            str(p.relative_to(root)): p.read_text(encoding="utf-8") for p in (root / package).rglob("*.py")
+        }
+    installs = {}
+    for name, text in texts.items():
+        for line in re.findall(r"pip install (?:-e )?\S*\[\w+\]\S*", text):  # with an extra
+            installs.setdefault(name, []).append(line)
+    assert len(installs["README.md"]) >= 3 and "contact_edit_addon/commands/cli.py" in installs
+    for name, lines in installs.items():
+        for line in lines:
+            assert "contact-edit[" not in line, f"{name}: {line}"
+            named = re.match(r"pip install -e [\"']?\.\[(\w+)\][\"']?", line)
+            assert named and named[1] in extras, f"{name}: {line}"
+
+
 def test_ci_runs_the_test_commands_line_by_line():
     """The second block is what `.ci/run` runs on a clean clone (it cannot run inside the tests): the
     same awk program, line by line; the first line is the everyday suite, the second the slow tests."""

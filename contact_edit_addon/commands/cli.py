@@ -28,7 +28,7 @@ Subcommands:
   speed-up from one to two worker processes.
 
 ``demo``, ``pose``, ``bench rigs`` and ``bench operators`` need Blender's Python module
-(``pip install "contact-edit[blender]"``).
+(``pip install -e ".[blender]"`` in the checkout).
 
 No command writes over one of its input files, even with ``--overwrite``, nor replaces an existing
 output file without ``--overwrite`` (:mod:`.outputs`; a retarget's folder holding its run's frames is
@@ -295,7 +295,7 @@ def _blender():
     except ImportError:
         print(
             "contact-edit: this command needs Blender's Python module (bpy 5.0.1, Python 3.11); install it "
-            'with pip install "contact-edit[blender]"',
+            'with pip install -e ".[blender]" in the checkout',
             file=sys.stderr,
         )
         return None
@@ -502,7 +502,10 @@ def _retarget(args: argparse.Namespace) -> int:
     for name, path in paths.items():
         print(f"  {name:<10} {path}")
     if not plot and not args.no_plot:
-        print("  metrics.png not written: matplotlib is not installed (pip install 'contact-edit[plots]')")
+        print(
+            "  metrics.png not written: matplotlib is not installed "
+            "(pip install -e '.[plots]' in the checkout)"
+        )
     sys.stdout.flush()
     for warning in summary.get("warnings", []):
         print(f"  warning: {warning}", file=sys.stderr)

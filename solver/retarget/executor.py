@@ -213,7 +213,8 @@ def _run_on_cluster(solve, shared, tasks, todo, store, scheduler, report, total,
         from distributed import Client, as_completed
     except ImportError:
         raise SolverError(
-            'sending frames to a Dask cluster needs dask.distributed: pip install "contact-edit[cluster]"'
+            'sending frames to a Dask cluster needs dask.distributed: pip install -e ".[cluster]" in the '
+            "checkout"
         ) from None
     try:
         client = Client(scheduler, timeout="10s")
