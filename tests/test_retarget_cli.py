@@ -227,7 +227,7 @@ def terminated_retarget(motion_file, out: Path, group: bool) -> str:
             os.killpg(process.pid, signal.SIGTERM)
         else:
             process.send_signal(signal.SIGTERM)
-        assert process.wait(timeout=120) == 128 + signal.SIGTERM  # before: killed (-15), or hung
+        assert process.wait(timeout=60) == 128 + signal.SIGTERM  # before: killed (-15), or hung
         err = "".join(seen) + process.stderr.read()
     finally:
         if process.poll() is None:

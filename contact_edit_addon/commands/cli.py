@@ -325,6 +325,7 @@ def _demo(args: argparse.Namespace) -> int:
     touching = f"{len(result.touching)}, not {', '.join(missed)}" if missed else f"all {len(result.painted)}"
     print(f"  pads touching the mug after the solve: {touching}")
     print(f"  deepest vertex of the hand inside the mug: {1e3 * result.deepest:.2f} mm")
+    print(f"  deepest point of its faces inside the mug: {1e3 * result.deepest_face:.2f} mm")
     print(f"  solve: {result.summary}")
     print(f"  scene:    {result.blend}")
     print(f"  contacts: {result.contacts_file}")
