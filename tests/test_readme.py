@@ -6,6 +6,7 @@ registered hotkeys."""
 from __future__ import annotations
 
 import importlib.util
+import itertools
 import json
 import re
 import shutil
@@ -108,6 +109,48 @@ def test_every_install_is_from_the_checkout_with_extras_it_defines():
             assert "contact-edit[" not in line, f"{name}: {line}"
             named = re.match(r"pip install -e [\"']?\.\[(\w+)\][\"']?", line)
             assert named and named[1] in extras, f"{name}: {line}"
+
+
+def readme_outputs() -> set[str]:
+    """What the README's own commands write, as paths relative to where they run (a checkout's top; a
+    folder ends in ``/``): the shell lines' ``-o``/``--output``/``--out`` and ``synthesize`` outputs, the
+    ``filepath=`` Blender saves to (and its ``.blend1`` backup, which Blender makes when it saves over a
+    file), and the files its Python blocks save (the first file name given to a ``save…(…)`` call)."""
+    found = set()
+    for block in readme.blocks():
+        if block.language == "sh":
+            for line in block.lines():
+                words = readme.command(line)
+                folders = {"build-extension", "retarget"} & set(words)  # their -o is a folder
+                for option, value in itertools.pairwise(words):
+                    if option in ("-o", "--output", "--out", "synthesize"):
+                        found.add(value.rstrip("/") + ("/" if folders or option == "--out" else ""))
+                for saved in re.findall(r"filepath='([^']+)'", line):
+                    found |= {saved, f"{saved}1"} if saved.endswith(".blend") else {saved}
+        elif block.language == "python":
+            for call in re.findall(r"\bsave\w*\(([^)]*)\)", block.code):
+                names = re.findall(r"[\"']([^\"']+\.\w+)[\"']", call)
+                found |= set(names[:1])
+    return found
+
+
+def test_what_the_readme_commands_write_in_a_checkout_is_ignored_by_git():
+    """Issue 39: ``posed.blend`` from the README's own pose line showed up in ``git status``. Every output
+    of the README's commands, run at the top of a checkout as it says, is ignored."""
+    root = readme.README.parent
+    if shutil.which("git") is None or not (root / ".git").exists():
+        pytest.skip("not a git checkout")
+    outputs = readme_outputs()
+    assert {
+        "demo/", "dist/", "posed.blend", "posed.blend1", "retargeted.blend", "grasp.npz", "witch/",
+        "mug_drink.npz", "hand.obj", "contacts.json", "hand.virtualmarkers", "motion.kmexp",
+    } <= outputs  # fmt: skip
+    done = subprocess.run(
+        ["git", "check-ignore", "--no-index", "--stdin", "-v", "-n"], input="\n".join(sorted(outputs)),
+        cwd=root, capture_output=True, text=True,
+    )  # fmt: skip
+    rules = dict(line.split("\t")[::-1] for line in done.stdout.splitlines())
+    assert {path for path in outputs if rules.get(path, "::") == "::"} == set()  # no rule ignores these
 
 
 def test_ci_runs_the_test_commands_line_by_line():
