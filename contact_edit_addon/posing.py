@@ -25,6 +25,7 @@ from solver import (
     Weights,
     grasp,
 )
+from solver.sdf import deepest_in_faces
 
 from . import bridge, store
 
@@ -79,7 +80,22 @@ def _objects(scene: bpy.types.Scene) -> tuple[bpy.types.Object, bpy.types.Object
     settings = scene.contact_edit
     if settings.hand is None or settings.target is None:
         raise bridge.BridgeError("choose the hand and the object in the Contact tab first")
+    same = of_the_hand(settings.hand, settings.target)
+    if same is not None:
+        raise bridge.BridgeError(
+            f"the object '{settings.target.name}' is {same}; choose the mesh the hand touches as the object"
+        )
     return settings.hand, settings.target
+
+
+def of_the_hand(hand: bpy.types.Object, target: bpy.types.Object) -> str | None:
+    """What ``target`` is of the hand, in words, when it is the hand itself or the armature that deforms
+    it (a solve would pose the hand against its own skin: nothing to touch); None for any other object."""
+    if target == hand:
+        return "the hand itself"
+    if target == hand.find_armature() or (target.type == "ARMATURE" and target == hand.parent):
+        return "the hand's armature"
+    return None
 
 
 def contact_pairs(hand_set, object_set) -> tuple[SurfacePoints, SurfacePoints, list[tuple[str, str]]]:
@@ -262,25 +278,31 @@ class Touch:
     ``touching`` the patches whose gap is within ``tolerance``; ``deepest`` is how far the deepest
     vertex of the hand's skin is inside the object (0 when none is; None for an open object, which
     has no inside). Between vertices a face can cut a sharp edge of the object (a mug's rim) a little
-    deeper.
+    deeper: ``deepest_face`` is how deep the skin's faces go (:func:`solver.sdf.deepest_in_faces`), when
+    asked for (else None, as for an open object).
     """
 
     gaps: dict[str, float]
     touching: tuple[str, ...]
     tolerance: float
     deepest: float | None
+    deepest_face: float | None = None
 
 
-def touch(problem: Problem, theta) -> Touch:
-    """Which paired hand patches the pose θ (d,) brings onto the object, and how deep it is inside."""
+def touch(problem: Problem, theta, faces: bool = False) -> Touch:
+    """Which paired hand patches the pose θ (d,) brings onto the object, and how deep it is inside: its
+    deepest vertex, and with ``faces`` the deepest point of its faces."""
     scale = problem.world_scale
     gaps = {h: gap * scale for h, gap in problem.ik.gaps(theta).items()}
     tolerance = TOUCH_DISTANCE * problem.ik.unit * scale
-    deepest = None
+    deepest = deepest_face = None
     if problem.solid is not None:
-        inside = problem.solid(problem.ik.hand.posed_vertices(theta))
-        deepest = max(0.0, -float(inside.min())) * scale
-    return Touch(gaps, tuple(h for h, gap in gaps.items() if gap <= tolerance), tolerance, deepest)
+        skin = problem.ik.hand.posed_vertices(theta)
+        deepest = max(0.0, -float(problem.solid(skin).min())) * scale
+        if faces:
+            deepest_face = deepest_in_faces(problem.solid, skin, problem.ik.hand.mesh.faces) * scale
+    touching = tuple(h for h, gap in gaps.items() if gap <= tolerance)
+    return Touch(gaps, touching, tolerance, deepest, deepest_face)
 
 
 def summary(scene: bpy.types.Scene, problem: Problem, result: SolveResult, outcome: str | None = None) -> str:

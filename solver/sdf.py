@@ -137,6 +137,60 @@ class MeshSDF:
         return np.where(np.einsum("kj,kj->k", X - closest, normal) < 0, -1.0, 1.0)
 
 
+#: Steps along each side of the triangular grid :func:`deepest_in_faces` samples a face on: 8 gives 45
+#: points a face, its corners and edge midpoints included.
+FACE_STEPS = 8
+
+
+def deepest_in_faces(solid, vertices, faces, steps: int = FACE_STEPS) -> float:
+    """How deep the deepest sampled point of a triangle mesh's faces is inside a solid (0 when none is).
+
+    A solve keeps vertices out (:class:`~solver.ContactIK`'s keep-out term sees vertices), but between
+    them a face can cut a sharp edge of the solid, a mug's rim, deeper than any vertex is: this measures
+    the faces themselves, on a triangular grid of ``steps`` steps a side.
+
+    Parameters
+    ----------
+    solid : MeshSDF, Box or HalfSpace
+        Anything with ``evaluate(points (k, 3)) -> (signed distances (k,), gradients (k, 3))``, negative
+        inside, a true distance (1-Lipschitz), as all three are.
+    vertices : (n, 3) array_like
+        The mesh's vertex positions, in the solid's space.
+    faces : (m, 3) int array_like
+        Its triangles, as vertex indices.
+    steps : int
+        Grid steps along each side of a face: ``(steps + 1)(steps + 2) / 2`` points a face.
+
+    Returns
+    -------
+    float
+        The largest depth among the sampled points, >= 0; exact where the deepest point of the faces is
+        a grid point (a vertex, an edge's midpoint for even ``steps``), else within a grid step of it.
+        Only faces that can reach inside are sampled: no point of a face is farther from its corners
+        than its longest edge, so a face whose corners are all farther out than that is left out.
+    """
+    V = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces)
+    if V.ndim != 2 or V.shape[1] != 3 or F.ndim != 2 or F.shape[1] != 3:
+        raise SolverError(f"vertices must have shape (n, 3) and faces (m, 3), got {V.shape} and {F.shape}")
+    if int(steps) != steps or steps < 1:
+        raise SolverError(f"steps must be a whole number of at least 1, got {steps!r}")
+    if F.size == 0:
+        return 0.0
+    at_vertices = solid.evaluate(V)[0]
+    corners = V[F]  # (m, 3, 3)
+    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(1)
+    near = np.flatnonzero(at_vertices[F].min(1) < longest)
+    deepest = max(0.0, -float(at_vertices.min()))
+    if near.size:
+        i, j = np.meshgrid(np.arange(steps + 1), np.arange(steps + 1), indexing="ij")
+        keep = i + j <= steps
+        bary = np.stack([i[keep], j[keep], steps - i[keep] - j[keep]], 1) / steps  # (s, 3)
+        samples = np.einsum("sc,fcd->fsd", bary, corners[near]).reshape(-1, 3)
+        deepest = max(deepest, -float(solid.evaluate(samples)[0].min()))
+    return deepest
+
+
 class NarrowBand:
     """Signed distances of a point set evaluated again and again as it moves (a solve's skin), for a
     penalty of penetration: exact where a point is inside within ``band`` of the surface, else a

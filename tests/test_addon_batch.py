@@ -36,6 +36,7 @@ def test_demo_paints_transfers_solves_keys_saves_and_renders(demo, tmp_path):
     mean = float(value) * {"µm": 1e-6, "mm": 1e-3, "cm": 1e-2, "m": 1.0}[unit]
     assert 0 < mean < 0.003  # metres, on a hand 19 cm long
     printed_depth = float(re.search(r"deepest vertex of the hand inside the mug: ([0-9.]+) mm", printed)[1])
+    printed_faces = float(re.search(r"deepest point of its faces inside the mug: ([0-9.]+) mm", printed)[1])
     with open(out / "demo.png", "rb") as f:
         header = f.read(24)
     assert header[:8] == b"\x89PNG\r\n\x1a\n" and struct.unpack(">II", header[16:24]) == (480, 360)
@@ -94,6 +95,7 @@ def test_demo_paints_transfers_solves_keys_saves_and_renders(demo, tmp_path):
     assert max(found["gaps"].values()) < 1e-3, found["gaps"]
     assert found["depth"] < 1e-4 and printed_depth == pytest.approx(1e3 * found["depth"], abs=0.01)
     assert found["faces_depth"] < 1e-3  # between vertices a face cuts the mug's rim a little deeper
+    assert printed_faces == pytest.approx(1e3 * found["faces_depth"], abs=0.01)  # and the demo says so
     assert "all 6 patches touch 'Mug'" in found["summary"]
     assert found["denoised"] and found["denoiser"] == "OPENIMAGEDENOISE" and found["sun"] > 0
     assert found["floor"] == pytest.approx(found["lowest"], abs=1e-6)  # under everything, touching it

@@ -38,7 +38,7 @@ def test_bad_arguments_are_refused(capsys):
         main(["bench", "nothing"])
     with pytest.raises(SystemExit):
         main(["bench", "geodesics", "--repeat", "0"])
-    assert "--repeat must be at least 1" in capsys.readouterr().err
+    assert "argument --repeat: must be at least 1, got 0" in capsys.readouterr().err
 
 
 def test_bench_tangible_prints_link_interpolation_and_reduction_rows(capsys, monkeypatch):

@@ -125,6 +125,37 @@ def test_ctrl_c_elsewhere_ends_with_one_line_and_status_130(tmp_path, capsys, mo
     assert err.splitlines()[-1] == "contact-edit synthesize: interrupted"
 
 
+def test_sigterm_ends_a_command_as_ctrl_c_does_with_status_143(tmp_path, capsys, monkeypatch):
+    """Issue 39: SIGTERM takes the Ctrl-C path (the same line; status 128 + 15), and the command's
+    handler is only the command's: the caller's is back afterwards."""
+    import signal
+    import time
+
+    from solver.retarget import pipeline
+
+    def terminated(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(10)  # the handler raises well before
+        raise AssertionError("SIGTERM did not interrupt the command")
+
+    def callers(signum, frame):  # this process's own handler (the default would end the test run)
+        raise AssertionError("SIGTERM reached the caller's handler, not the command's")
+
+    fake_motion(monkeypatch)
+    monkeypatch.setattr(pipeline, "retarget", terminated)
+    before = signal.signal(signal.SIGTERM, callers)
+    try:
+        out = tmp_path / "out"
+        assert main(["retarget", "grasp.npz", "--target", "alien", "-o", str(out)]) == 143
+        assert one_line(capsys.readouterr().err) == (
+            "contact-edit retarget: interrupted; run the same command again to resume "
+            f"(solved frames are kept in {out / 'frames'})"
+        )
+        assert signal.getsignal(signal.SIGTERM) is callers
+    finally:
+        signal.signal(signal.SIGTERM, before)
+
+
 class FakeRetarget:
     """What the CLI reads of a retarget's result."""
 
@@ -188,25 +219,69 @@ def test_the_retarget_titles_its_plot(tmp_path, capsys, monkeypatch):
 
 
 def test_synthesize_replaces_an_existing_file_only_with_overwrite(tmp_path, capsys, monkeypatch):
-    """Issue 39: ``synthesize copy.blend`` wrote a motion over a .blend without asking."""
+    """Issue 39: ``synthesize copy.blend`` wrote a motion over a .blend without asking; now a motion is
+    only ever written as .npz, and an existing one replaced only with --overwrite."""
     from solver.retarget import synthetic
 
     blend = tmp_path / "copy.blend"
     blend.write_bytes(b"BLENDER-v500 a scene to keep")
     generate = synthetic.generate
     monkeypatch.setattr(synthetic, "generate", interrupt)  # nothing generated before the check
-    assert main(["synthesize", str(blend), "--frames", "60"]) == 1
-    assert one_line(capsys.readouterr().err) == (
-        f"contact-edit synthesize: {blend} exists; choose another output, or pass --overwrite to replace it"
-    )
+    for overwrite in ([], ["--overwrite"]):
+        assert main(["synthesize", str(blend), "--frames", "60", *overwrite]) == 1
+        assert one_line(capsys.readouterr().err) == (
+            f"contact-edit synthesize: {blend}: the output is written as a .npz file, so its name must end "
+            "in .npz (e.g. copy.npz)"
+        )
     assert blend.read_bytes() == b"BLENDER-v500 a scene to keep"
+    motion = tmp_path / "old.npz"
+    motion.write_bytes(b"PK a motion to keep")
+    assert main(["synthesize", str(motion), "--frames", "60"]) == 1
+    assert one_line(capsys.readouterr().err) == (
+        f"contact-edit synthesize: {motion} exists; choose another output, or pass --overwrite to replace it"
+    )
+    assert motion.read_bytes() == b"PK a motion to keep"
     monkeypatch.setattr(synthetic, "generate", generate)
-    args = ["synthesize", str(blend), "--object", "sphere", "--frames", "44", "--density", "2", "--overwrite"]
+    args = [
+        "synthesize",
+        str(motion),
+        "--object",
+        "sphere",
+        "--frames",
+        "44",
+        "--density",
+        "2",
+        "--overwrite",
+    ]
     assert main(args) == 0
-    assert f"saved {blend}" in capsys.readouterr().out
+    assert f"saved {motion}" in capsys.readouterr().out
     from solver.retarget import Motion
 
-    assert Motion.load(blend).n_frames == 44
+    assert Motion.load(motion).n_frames == 44
+
+
+@pytest.mark.parametrize(
+    "name, hint", [("o11.txt", "o11.npz"), ("o11", "o11.npz"), ("motion.npz.tmp", "motion.npz")]
+)
+def test_a_motion_output_named_with_another_extension_is_refused_before_any_work(
+    name, hint, tmp_path, capsys, monkeypatch
+):
+    """Issue 39: ``-o o11.txt`` wrote a file whose name hides its format. synthesize and import-grab
+    write a motion (.npz, any case)."""
+    from solver.retarget import synthetic
+
+    monkeypatch.setattr(synthetic, "generate", never)
+    monkeypatch.chdir(tmp_path)
+    said = f"{name}: the output is written as a .npz file, so its name must end in .npz (e.g. {hint})"
+    assert main(["synthesize", name]) == 1
+    assert one_line(capsys.readouterr().err) == f"contact-edit synthesize: {said}"
+    grab = ["import-grab", "grab.npz", "--hand-mesh", "h.obj", "--object-mesh", "o.obj", "-o", name]
+    assert main(grab) == 1
+    assert one_line(capsys.readouterr().err) == f"contact-edit import-grab: {said}"
+    assert list(tmp_path.iterdir()) == []
+    from contact_edit_addon.commands.outputs import check_outputs
+
+    check_outputs([tmp_path / "UPPER.NPZ"], {}, suffix=".npz")  # the extension in any case
 
 
 def test_a_retarget_never_writes_over_its_inputs_even_with_overwrite(tmp_path, capsys, monkeypatch):
@@ -300,3 +375,79 @@ def test_outputs_are_compared_with_inputs_as_files(tmp_path):
     with pytest.raises(FileExistsError, match=r"inside .*, which this command fills with its work"):
         check_outputs([], {scene: "the scene"}, folders=[tmp_path.parent])
     check_outputs([], {scene: "the scene"}, folders=[tmp_path / "frames"])
+
+
+def never(*args, **kwargs):
+    raise AssertionError("the work started before the options were checked")
+
+
+# Every count option, with a value it refuses and what it says (argparse: exit status 2, before any work).
+REFUSED_COUNTS = [
+    (["bench", "geodesics", "--rays", "0"], "argument --rays: must be at least 1, got 0"),
+    (["bench", "geodesics", "--repeat", "-3"], "argument --repeat: must be at least 1, got -3"),
+    (["bench", "layouts", "--per-bin", "0"], "argument --per-bin: must be at least 1, got 0"),
+    (["bench", "retarget", "--frames", "0"], "argument --frames: must be at least 1, got 0"),
+    (["bench", "solver", "--repeat", "two"], "argument --repeat: 'two' is not a whole number"),
+    (["synthesize", "m.npz", "--frames", "0"], "argument --frames: must be at least 1, got 0"),
+    (["retarget", "m.npz", "--target", "alien", "-o", "out", "--workers", "0"],
+     "argument --workers: must be at least 1, got 0"),
+    (["retarget", "m.npz", "--target", "alien", "-o", "out", "--workers", "-2"],
+     "argument --workers: must be at least 1, got -2"),
+    (["retarget", "m.npz", "--target", "alien", "-o", "out", "--control", "0"],
+     "argument --control: must be at least 4 (a cubic spline's degree + 1), got 0"),
+    (["retarget", "m.npz", "--target", "alien", "-o", "out", "--control", "-1"],
+     "argument --control: must be at least 4 (a cubic spline's degree + 1), got -1"),
+    (["retarget", "m.npz", "--target", "alien", "-o", "out", "--control", "2"],
+     "argument --control: must be at least 4 (a cubic spline's degree + 1), got 2"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("args, said", REFUSED_COUNTS, ids=[" ".join(a[-2:]) for a, _ in REFUSED_COUNTS])
+def test_count_options_refuse_counts_below_their_least_before_any_work(
+    args, said, tmp_path, capsys, monkeypatch
+):
+    """Issue 39: ``--rays 0`` ended in a numpy broadcasting error, ``--control 2`` only after every
+    frame's solve, ``--control 0`` and ``--workers 0`` silently meant the default."""
+    from geodesics import benchmark
+    from solver import benchmark as solver_benchmark
+    from solver import layout_benchmark
+    from solver.retarget import benchmark as retarget_benchmark
+    from solver.retarget import pipeline, synthetic
+
+    for module in (benchmark, layout_benchmark, solver_benchmark, retarget_benchmark):
+        monkeypatch.setattr(module, "run", never)
+    monkeypatch.setattr(synthetic, "generate", never)
+    monkeypatch.setattr(pipeline, "retarget", never)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exit_:
+        main(args)
+    assert exit_.value.code == 2
+    assert capsys.readouterr().err.splitlines()[-1].endswith(f": error: {said}")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_every_count_option_is_checked_by_the_shared_count_type():
+    """No option parses a count with a bare ``int`` (which takes 0 and negatives); the only whole numbers
+    that may be anything are a frame number and a seed. The spline's least count is the solver's."""
+    import argparse
+
+    from contact_edit_addon.commands import cli
+    from solver.retarget.spline import DEGREE
+
+    parser = cli.build_parser()
+    [commands] = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    counted, free = set(), set()
+    for name, sub in commands.choices.items():
+        for action in sub._actions:
+            if getattr(action.type, "__name__", None) == "count":
+                counted.add(f"{name} {action.option_strings[0]}")
+            elif action.type is int:
+                free.add(f"{name} {action.option_strings[0]}")
+    assert free == {"pose --frame", "synthesize --seed"}
+    assert counted == {
+        "bench --repeat", "bench --rays", "bench --frames", "bench --per-bin", "synthesize --frames",
+        "retarget --workers", "retarget --control",
+    }  # fmt: skip
+    assert cli._SPLINE_LEAST == DEGREE + 1
+    args = parser.parse_args(["retarget", "m.npz", "--target", "alien", "-o", "out", "--control", "4"])
+    assert args.control == 4 and args.workers is None  # absent: the default, decided by the pipeline

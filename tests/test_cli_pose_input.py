@@ -180,3 +180,82 @@ def test_pose_never_writes_over_its_inputs_and_replaces_an_output_only_with_over
     )
     assert done.returncode == 1 and "no hand and no object chosen" in done.stderr  # past the check
     assert (tmp_path / "out.blend").read_bytes() == PREVIOUS and scene.read_bytes() == kept[scene]
+
+
+@pytest.fixture(scope="module")
+def hand_scene(tmp_path_factory) -> tuple[Path, list[str]]:
+    """The example scene (a rigged hand beside a mug, chosen in the Contact tab, no contacts yet), a copy
+    whose Contact tab chose the hand as the object too, and what the add-on's own solve setup says when
+    the object is the hand, then its armature."""
+    folder = tmp_path_factory.mktemp("pose-hand")
+    said = run_blender(
+        f"""
+        import numpy as np
+        import contact_edit_addon
+        from contact_edit_addon import assets, bridge, posing
+        contact_edit_addon.register()
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        assets.example_scene(bpy.context, np.zeros(3))
+        bpy.ops.wm.save_as_mainfile(filepath={str(folder / "hand.blend")!r})
+        settings = bpy.context.scene.contact_edit
+        said = []
+        for target in (settings.hand, settings.hand.parent):
+            settings.target = target
+            try:
+                posing.problem(bpy.context.scene)
+            except bridge.BridgeError as err:
+                said.append(str(err))
+        settings.target = settings.hand
+        bpy.ops.wm.save_as_mainfile(filepath={str(folder / "itself.blend")!r})
+        result(said)
+        """,
+        folder / "user",
+    )
+    return folder, said
+
+
+def test_posing_the_hand_against_itself_or_its_armature_is_refused_before_solving(hand_scene):
+    """Issue 39: ``pose … --object Hand`` solved the hand against its own skin ("0 of 6 patches touch
+    'Hand'", exit status 0). Refused in one line naming the option and the object, nothing written."""
+    folder, said = hand_scene
+    scene, user = folder / "hand.blend", folder / "user"
+    for name, what in (("Hand", "the hand itself"), ("Hand rig", "the hand's armature")):
+        done = contact_edit(
+            "pose", "hand.blend", "--object", name, "-o", "posed.blend", cwd=folder, user_dir=user
+        )
+        assert done.returncode == 1 and done.stdout == ""
+        assert done.stderr.splitlines() == [
+            f"contact-edit pose: {scene}: --object '{name}' is {what}, not a mesh the hand touches; name the "
+            "object with --object NAME (mesh objects: Mug)"
+        ]
+    done = contact_edit("pose", "itself.blend", "-o", "posed.blend", cwd=folder, user_dir=user)
+    assert done.returncode == 1
+    assert done.stderr.splitlines() == [
+        f"contact-edit pose: {folder / 'itself.blend'}: the object chosen in the scene's Contact tab, "
+        "'Hand', is the hand itself, not a mesh the hand touches; name the object with --object NAME "
+        "(mesh objects: Mug)"
+    ]
+    assert not (folder / "posed.blend").exists()
+    # The add-on's solve (the operator's, a script's) refuses it the same way.
+    assert said == [
+        "the object 'Hand' is the hand itself; choose the mesh the hand touches as the object",
+        "the object 'Hand rig' is the hand's armature; choose the mesh the hand touches as the object",
+    ]
+
+
+def test_a_posed_scene_is_only_written_under_a_blend_name(files, tmp_path):
+    """Issue 39: ``pose … -o o11.txt`` wrote a .blend named .txt. Refused before the scene is opened (an
+    output named so, even one that exists, is kept as it is, --overwrite or not)."""
+    (tmp_path / "o11.txt").write_bytes(PREVIOUS)
+    for name, overwrite in (("o11.txt", ["--overwrite"]), ("posed", [])):
+        done = contact_edit(
+            "pose", str(files / "tiny.blend"), "-o", name, *overwrite, cwd=tmp_path, user_dir=files / "user"
+        )
+        assert done.returncode == 1 and done.stdout == ""
+        assert done.stderr.splitlines() == [
+            f"contact-edit pose: {tmp_path / name}: the output is written as a .blend file, so its name must "
+            f"end in .blend (e.g. {Path(name).stem}.blend)"
+        ]
+    assert [p.name for p in tmp_path.iterdir()] == ["o11.txt"] and (
+        tmp_path / "o11.txt"
+    ).read_bytes() == PREVIOUS

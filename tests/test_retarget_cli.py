@@ -1,6 +1,11 @@
 """`contact-edit synthesize` and `contact-edit retarget`: outputs, resume, refusal of bad input."""
 
 import json
+import os
+import re
+import signal
+import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,6 +14,8 @@ from contact_edit_addon.commands.cli import main
 from solver.hands import make_hand
 from solver.retarget import KeyframeMotion, Motion
 from solver.retarget.metrics import IntersectionMeter
+
+from .blender import CONTACT_EDIT
 
 
 @pytest.fixture(scope="module")
@@ -195,3 +202,68 @@ def test_baselines_reuse_our_solves_and_write_table_1(retargeted, capsys):
     text = (out / "table1.txt").read_text()
     assert [line.split()[0] for line in text.splitlines()[3:6]] == ["Keypoint", "Keyvector", "Ours"]
     assert "Refinement (§3.4.3) was skipped" in text and "Splines of 8 control points" in text
+
+
+def terminated_retarget(motion_file, out: Path, group: bool) -> str:
+    """``contact-edit retarget`` with two workers, in a real process, sent SIGTERM once it is solving full
+    poses (``group``: to its whole process group, as ``timeout`` does, workers included); its stderr."""
+    args = ["retarget", str(motion_file), "--target", "alien", "-o", str(out), "--workers", "2"]
+    args += ["--no-refine", "--control", "8", "--no-plot"]
+    root = str(Path(__file__).resolve().parents[1])  # this checkout's code, not an installed copy's
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))}
+    process = subprocess.Popen(
+        [*CONTACT_EDIT, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+        start_new_session=group,
+    )  # fmt: skip
+    try:
+        seen = []
+        for line in process.stderr:  # plain progress lines (not a terminal): wait for full-pose frames
+            seen.append(line)
+            if re.match(r"  full +[1-9]\d*/44 ", line):
+                break
+        else:
+            pytest.fail(f"the retarget ended before solving full poses: {''.join(seen)}")
+        if group:
+            os.killpg(process.pid, signal.SIGTERM)
+        else:
+            process.send_signal(signal.SIGTERM)
+        assert process.wait(timeout=60) == 128 + signal.SIGTERM  # before: killed (-15), or hung
+        err = "".join(seen) + process.stderr.read()
+    finally:
+        if process.poll() is None:
+            if group:
+                os.killpg(process.pid, signal.SIGKILL)  # its workers too
+            process.kill()
+            process.wait()
+        process.stdout.close()
+        process.stderr.close()
+    assert "leaked semaphore" not in err and "Traceback" not in err, err
+    assert err.splitlines()[-1] == (
+        "contact-edit retarget: interrupted; run the same command again to resume "
+        f"(solved frames are kept in {out / 'frames'})"
+    )
+    return args
+
+
+def test_sigterm_ends_a_retarget_as_ctrl_c_does_and_the_same_command_resumes(motion_file, tmp_path, capsys):
+    """Issue 39: SIGTERM (``kill``, a scheduler's time limit) killed a retarget outright: the resource
+    tracker reported its worker processes' semaphores leaked and nothing said what was kept. Now it ends
+    as Ctrl-C does: the workers finish their frames and are joined, one line says how to resume, exit
+    status 143 (128 + 15); the same command then solves only the rest."""
+    out = tmp_path / "out"
+    args = terminated_retarget(motion_file, out, group=False)
+    kept = {p: p.stat().st_mtime_ns for p in (out / "frames" / "full").glob("*.npz")}
+    assert 0 < len(kept) < 44 and not (out / "summary.json").exists()
+    assert main(args) == 0  # the same command: it resumes
+    first_full = next(line for line in capsys.readouterr().err.splitlines() if line.startswith("  full "))
+    assert first_full.startswith(f"  full      {len(kept)}/44 ")  # the kept frames count as done
+    assert {p: p.stat().st_mtime_ns for p in kept} == kept  # and are not solved again
+    assert len(list((out / "frames" / "full").glob("*.npz"))) == 44 and (out / "summary.json").is_file()
+
+
+def test_sigterm_to_the_whole_process_group_ends_a_retarget_the_same_way(motion_file, tmp_path):
+    """``timeout`` and service managers signal the process group, the workers too: they used to die
+    mid-frame and the command hung at exit on the frames still queued for them."""
+    out = tmp_path / "out"
+    terminated_retarget(motion_file, out, group=True)
+    assert 0 < len(list((out / "frames" / "full").glob("*.npz"))) < 44

@@ -19,8 +19,11 @@ def square_plus_offset(shared, task):
 
 
 def ctrl_c_handler(shared, task):
-    """What a worker does on Ctrl-C (SIGINT): its handler, as a number."""
-    return {"ignored": np.int64(signal.getsignal(signal.SIGINT) == signal.SIG_IGN)}
+    """What a worker does on Ctrl-C (SIGINT) and on SIGTERM: whether it ignores each, as numbers."""
+    return {
+        "ignored": np.int64(signal.getsignal(signal.SIGINT) == signal.SIG_IGN),
+        "sigterm_ignored": np.int64(signal.getsignal(signal.SIGTERM) == signal.SIG_IGN),
+    }
 
 
 def die(shared, task):
@@ -120,15 +123,32 @@ def test_dask_cluster_gets_the_same_tasks(tmp_path):
         )
 
 
-def test_workers_leave_ctrl_c_to_the_process_that_started_them(tmp_path):
-    """A terminal's Ctrl-C reaches every process of its group: workers ignore it (they would die
-    mid-frame, each with a traceback), the caller gets KeyboardInterrupt and stops handing out frames."""
-    before = signal.getsignal(signal.SIGINT)  # Python's default, or ignored when started in the background
+def test_workers_leave_ctrl_c_and_sigterm_to_the_process_that_started_them(tmp_path):
+    """A terminal's Ctrl-C reaches every process of its group, and so does ``timeout``'s SIGTERM: workers
+    ignore both (they would die mid-frame, each with a traceback, and leave the frames queued for them
+    in a pipe no process reads, which hung the pool's shutdown), the caller gets KeyboardInterrupt (the
+    command line raises one on SIGTERM) and stops handing out frames."""
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     results = run_frames(ctrl_c_handler, None, tasks(4), FrameStore(tmp_path, RUN), workers=2)
-    assert all(int(r["ignored"]) == 1 for r in results.values())
-    assert signal.getsignal(signal.SIGINT) is before  # this process is untouched
+    assert all(int(r["ignored"]) == 1 and int(r["sigterm_ignored"]) == 1 for r in results.values())
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before  # untouched here
 
 
 def test_a_worker_that_dies_is_a_clear_error_naming_the_main_guard(tmp_path):
     with pytest.raises(SolverError, match='if __name__ == "__main__"'):
         run_frames(die, None, tasks(2), FrameStore(tmp_path, RUN), workers=2)
+
+
+@pytest.mark.parametrize("workers", [0, -2, 1.5, True])
+def test_a_worker_count_below_one_is_refused_not_taken_for_the_default(tmp_path, workers):
+    """Issue 39: ``workers=0`` used to mean one per CPU and a negative count one process."""
+    with pytest.raises(SolverError, match=f"workers must be a whole number of at least 1 .*got {workers!r}"):
+        run_frames(square_plus_offset, {"offset": 0.5}, tasks(2), FrameStore(tmp_path, RUN), workers=workers)
+    assert not list(tmp_path.glob("*.npz"))  # nothing solved
+
+
+def test_a_retarget_refuses_a_bad_worker_count_before_any_stage():
+    from solver.retarget import retarget
+
+    with pytest.raises(SolverError, match="workers must be a whole number of at least 1"):
+        retarget(None, None, None, workers=0)  # checked before the motion, hand or annotation is looked at

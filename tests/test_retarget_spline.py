@@ -140,3 +140,17 @@ def test_thousand_frames_sixty_dofs_take_milliseconds():
             fit_bspline(x, 120, valid=mask, fps=FPS)
             runs.append(time.perf_counter() - start)
         assert np.median(runs) < 0.25  # measured: ~10 ms on the 2-core CI machine
+
+
+@pytest.mark.parametrize("n_control", [0, -1, 2, 3, 4.0])
+def test_retarget_options_refuse_a_control_count_the_spline_cannot_take_up_front(n_control):
+    """Issue 39: checked when the options are made, not by the spline stage after every frame's solve; 0
+    is refused, not taken for the default (None)."""
+    from solver.retarget import RetargetOptions
+    from solver.retarget.spline import DEGREE
+
+    with pytest.raises(SolverError, match=f"n_control must be a whole number of at least {DEGREE + 1} "):
+        RetargetOptions(n_control=n_control)
+    assert RetargetOptions(n_control=DEGREE + 1).n_control == 4 and RetargetOptions().n_control is None
+    with pytest.raises(SolverError, match="n_control"):  # what the spline itself needs: the same bound
+        fit_bspline(_samples()[1], DEGREE)

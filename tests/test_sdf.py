@@ -79,3 +79,23 @@ def test_evaluate_refuses_non_finite_points():
 
     with pytest.raises(SolverError, match="finite"):
         MeshSDF(MESHES["sphere"]).evaluate([[0.0, np.nan, 0.0]], 0.01)
+
+
+def test_the_deepest_point_of_faces_is_found_where_no_vertex_is_inside():
+    """A triangle on the plane x + y = 1.9 whose corners are all outside the cube [-1, 1]³ cuts its edge
+    x = y = 1: the midpoint of its first side, (0.95, 0.95, 0), is 0.05 inside (min(1 - x, 1 - y)), the
+    deepest of the plane's points there, and a grid point (an edge midpoint). The same by the exact mesh
+    distance and by the analytic box; a face far off is left out, and none inside gives 0."""
+    from solver.sdf import Box, deepest_in_faces
+
+    cube = objects.box(size=(2.0, 2.0, 2.0))
+    assert np.allclose(cube.vertices.min(0), -1) and np.allclose(cube.vertices.max(0), 1)
+    V = np.array([[1.9, 0.0, 0.0], [0.0, 1.9, 0.0], [0.95, 0.95, 3.0]])
+    far = V + 10.0
+    for solid in (MeshSDF(cube), Box(np.zeros(3), np.ones(3))):
+        assert solid.evaluate(V)[0].min() > 0.89  # every corner well outside
+        assert deepest_in_faces(solid, V, [[0, 1, 2]]) == pytest.approx(0.05, abs=1e-12)
+        both = np.vstack([V, far])
+        assert deepest_in_faces(solid, both, [[0, 1, 2], [3, 4, 5]]) == pytest.approx(0.05, abs=1e-12)
+        assert deepest_in_faces(solid, far, [[0, 1, 2]]) == 0.0
+        assert deepest_in_faces(solid, V, [[0, 1, 2]], steps=1) == 0.0  # the corners alone miss it

@@ -49,6 +49,33 @@ class SceneChoiceError(BridgeError):
         )
 
 
+class ObjectChoiceError(BridgeError):
+    """The object to pose against is the hand itself or its armature, or not a mesh.
+
+    ``given`` says whether the call named it (else the scene's Contact tab chose it); ``meshes`` are the
+    scene's other mesh objects. :meth:`message` words it for another interface's options, as
+    :class:`SceneChoiceError` does.
+    """
+
+    def __init__(self, scene_path, name: str, what: str, given: bool, meshes: Sequence[str]):
+        self.scene_path, self.name, self.what = Path(scene_path), name, what
+        self.given, self.meshes = given, tuple(meshes)
+        super().__init__(self.message("hand=NAME", "target=NAME"))
+
+    def message(self, hand_option: str, object_option: str) -> str:
+        """The error in the words of an interface whose options name the hand and the object."""
+        option = object_option.split("=")[0].split()[0]  # "--object NAME" -> "--object"
+        chosen = (
+            f"{option} '{self.name}'"
+            if self.given
+            else f"the object chosen in the scene's Contact tab, '{self.name}',"
+        )
+        return (
+            f"{self.scene_path}: {chosen} is {self.what}, not a mesh the hand touches; name the object with "
+            f"{object_option} (mesh objects: {', '.join(self.meshes) or 'none'})"
+        )
+
+
 def pose_scene(
     scene_path,
     output,
@@ -92,9 +119,10 @@ def pose_scene(
     ------
     BridgeError
         For a scene that is missing, not a .blend file, or damaged (nothing is written then); a missing
-        hand or object choice (:class:`SceneChoiceError`); an output Blender cannot write; contacts, a
-        pairing file or a rig that cannot be solved. Every message starts with the file it is about
-        (the library's own error is its ``__cause__``).
+        hand or object choice (:class:`SceneChoiceError`); an object that is the hand itself, its
+        armature or not a mesh (:class:`ObjectChoiceError`, before anything is read or solved); an
+        output Blender cannot write; contacts, a pairing file or a rig that cannot be solved. Every
+        message starts with the file it is about (the library's own error is its ``__cause__``).
     """
     scene_path, output = Path(scene_path).resolve(), Path(output).resolve()
     if scene_path.is_dir():
@@ -106,7 +134,7 @@ def pose_scene(
     if not output.parent.is_dir():
         raise BridgeError(f"{output.parent}: no such folder for the output")
     inputs = {scene_path: "the input scene", contacts: "the pairing file (--contacts)"}
-    check_outputs([output], inputs, overwrite=overwrite, error=BridgeError)
+    check_outputs([output], inputs, overwrite=overwrite, error=BridgeError, suffix=".blend")
     _open(scene_path, quiet)
     scene = bpy.context.scene
     settings = scene.contact_edit
@@ -117,6 +145,12 @@ def pose_scene(
     missing = [what for what, obj in (("hand", settings.hand), ("object", settings.target)) if obj is None]
     if missing:
         raise SceneChoiceError(scene_path, missing, _mesh_names())
+    what = posing.of_the_hand(settings.hand, settings.target)
+    if what is None and settings.target.type != "MESH":
+        what = _a(settings.target.type.lower())
+    if what is not None:  # before any contacts are read or anything solved
+        others = [name for name in _mesh_names() if name != settings.hand.name]
+        raise ObjectChoiceError(scene_path, settings.target.name, what, target is not None, others)
     if contacts is not None:
         with _naming(Path(contacts)):
             store.load_pairing(contacts, settings.hand, settings.target, remap)
@@ -153,6 +187,10 @@ def _naming(path: Path) -> Iterator[None]:
         if named and isinstance(err, BridgeError):
             raise
         raise BridgeError(str(err) if named else f"{path}: {err}") from err
+
+
+def _a(noun: str) -> str:
+    return f"{'an' if noun[:1] in 'aeiou' else 'a'} {noun}"
 
 
 def _mesh_names() -> list[str]:

@@ -28,28 +28,53 @@ Subcommands:
   speed-up from one to two worker processes.
 
 ``demo``, ``pose``, ``bench rigs`` and ``bench operators`` need Blender's Python module
-(``pip install "contact-edit[blender]"``).
+(``pip install -e ".[blender]"`` in the checkout).
 
 No command writes over one of its input files, even with ``--overwrite``, nor replaces an existing
 output file without ``--overwrite`` (:mod:`.outputs`; a retarget's folder holding its run's frames is
-that run's own, which it resumes); ``build-extension`` replaces the zips of the version it builds.
+that run's own, which it resumes); ``build-extension`` replaces the zips of the version it builds. An
+output file has its format's extension (``pose``: .blend; ``synthesize``, ``import-grab``: .npz).
 
 Errors in the input end a command with one line on stderr, ``contact-edit <command>: <what is wrong>``,
 and exit status 1 (``--debug`` adds the traceback); Ctrl-C ends it with a line saying what is kept and
-exit status 130. Progress goes to stderr: bars on a terminal, plain periodic lines elsewhere.
+exit status 130, SIGTERM with the same line and exit status 143. Progress goes to stderr: bars on a
+terminal, plain periodic lines elsewhere.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib.util
+import signal
 import sys
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 
 class _InputError(Exception):
     """Bad input the command line itself finds (an output path that cannot be written, …)."""
+
+
+def _count(least: int = 1, why: str = "") -> Callable[[str], int]:
+    """The argparse type of every count option: a whole number of at least ``least`` (1 unless ``why``,
+    in parentheses after the figure, says what needs more). An absent option keeps its default (None:
+    the command's own choice); a given 0 is never taken for "the default"."""
+
+    def count(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if value < least:
+            raise argparse.ArgumentTypeError(
+                f"must be at least {least}{f' ({why})' if why else ''}, got {value}"
+            )
+        return value
+
+    count.__name__ = "count"  # what argparse calls the type in its own messages
+    return count
 
 
 def _output_file(path: str) -> None:
@@ -270,7 +295,7 @@ def _blender():
     except ImportError:
         print(
             "contact-edit: this command needs Blender's Python module (bpy 5.0.1, Python 3.11); install it "
-            'with pip install "contact-edit[blender]"',
+            'with pip install -e ".[blender]" in the checkout',
             file=sys.stderr,
         )
         return None
@@ -300,6 +325,7 @@ def _demo(args: argparse.Namespace) -> int:
     touching = f"{len(result.touching)}, not {', '.join(missed)}" if missed else f"all {len(result.painted)}"
     print(f"  pads touching the mug after the solve: {touching}")
     print(f"  deepest vertex of the hand inside the mug: {1e3 * result.deepest:.2f} mm")
+    print(f"  deepest point of its faces inside the mug: {1e3 * result.deepest_face:.2f} mm")
     print(f"  solve: {result.summary}")
     print(f"  scene:    {result.blend}")
     print(f"  contacts: {result.contacts_file}")
@@ -322,7 +348,7 @@ def _pose(args: argparse.Namespace) -> int:
                 progress=lambda done, total, energy: bars("solving", done, total, f"energy {energy:.4g}"),
                 quiet=not args.debug,
             )  # fmt: skip
-        except batch.SceneChoiceError as err:  # in the command line's words
+        except (batch.SceneChoiceError, batch.ObjectChoiceError) as err:  # in the command line's words
             raise BridgeError(err.message("--hand NAME", "--object NAME")) from err
     print(f"contact-edit pose: {summary}")
     print(f"  saved {args.output}")
@@ -333,7 +359,7 @@ def _synthesize(args: argparse.Namespace) -> int:
     from solver.retarget import synthetic
 
     _output_file(args.output)
-    _check_outputs([args.output], {}, args.overwrite)
+    _check_outputs([args.output], {}, args.overwrite, suffix=".npz")
     with _StageBars() as bars:
         motion = synthetic.generate(
             args.object, frames=args.frames, fps=args.fps, seed=args.seed, scale=args.scale,
@@ -356,9 +382,10 @@ def _median(counts) -> float:
 #: The retarget's folder of per-frame results, inside its output folder.
 _FRAMES = "frames"
 
-# solver.retarget.grab.GRAB_FPS and solver.retarget.pairing.DEFAULT_CUTOFF, spelled out so that building
-# the parser does not import the solver (a test checks they agree).
-_GRAB_FPS, _CUTOFF = 120.0, 0.01
+# solver.retarget.grab.GRAB_FPS, solver.retarget.pairing.DEFAULT_CUTOFF and the fewest control points per
+# DOF the spline fit takes (solver.retarget.spline.DEGREE + 1), spelled out so that building the parser
+# does not import the solver (a test checks they agree).
+_GRAB_FPS, _CUTOFF, _SPLINE_LEAST = 120.0, 0.01, 4
 
 
 def _import_grab(args: argparse.Namespace) -> int:
@@ -371,7 +398,7 @@ def _import_grab(args: argparse.Namespace) -> int:
         args.hand_mesh: "the hand mesh (--hand-mesh)",
         args.object_mesh: "the object mesh (--object-mesh)",
     }
-    _check_outputs([args.output], inputs, args.overwrite, instead="choose another output (-o)")
+    _check_outputs([args.output], inputs, args.overwrite, instead="choose another output (-o)", suffix=".npz")
     hand_mesh = load_mesh(args.hand_mesh)
     object_mesh = load_mesh(args.object_mesh)
     motion = grab.load_grab(args.motion, hand_mesh, object_mesh, fps=args.fps, pair=False)
@@ -476,7 +503,10 @@ def _retarget(args: argparse.Namespace) -> int:
     for name, path in paths.items():
         print(f"  {name:<10} {path}")
     if not plot and not args.no_plot:
-        print("  metrics.png not written: matplotlib is not installed (pip install 'contact-edit[plots]')")
+        print(
+            "  metrics.png not written: matplotlib is not installed "
+            "(pip install -e '.[plots]' in the checkout)"
+        )
     sys.stdout.flush()
     for warning in summary.get("warnings", []):
         print(f"  warning: {warning}", file=sys.stderr)
@@ -562,10 +592,12 @@ def _bench_parser(command: _Subcommand) -> None:
         choices=["geodesics", "contacts", "solver", "layouts", "rigs", "operators", "tangible", "retarget"],
         help="what to benchmark",
     )
-    bench.add_argument("--repeat", type=int, default=7, help="runs per timing (the median is shown)")
-    bench.add_argument("--rays", type=int, default=2000, help="geodesics: rays / targets per query")
-    bench.add_argument("--frames", type=int, default=1000, help="retarget: frames of the motion")
-    bench.add_argument("--per-bin", type=int, default=1, help="layouts: layouts per object and bin of turn")
+    bench.add_argument("--repeat", type=_count(), default=7, help="runs per timing (the median is shown)")
+    bench.add_argument("--rays", type=_count(), default=2000, help="geodesics: rays / targets per query")
+    bench.add_argument("--frames", type=_count(), default=1000, help="retarget: frames of the motion")
+    bench.add_argument(
+        "--per-bin", type=_count(), default=1, help="layouts: layouts per object and bin of turn"
+    )
     bench.add_argument(
         "--paper",
         action="store_true",
@@ -659,7 +691,7 @@ def _synthesize_parser(command: _Subcommand) -> None:
         "--object", default="mug", choices=["mug", "cylinder", "box", "sphere"],
         help="the object the hand manipulates",
     )  # fmt: skip
-    synth.add_argument("--frames", type=int, default=600, help="frame count")
+    synth.add_argument("--frames", type=_count(), default=600, help="frame count")
     synth.add_argument("--fps", type=float, default=120.0, help="frame rate")
     synth.add_argument("--seed", type=int, default=0, help="draws the motion's variations")
     synth.add_argument("--scale", type=float, default=1.0, help="scale of the whole scene")
@@ -717,11 +749,14 @@ def _retarget_parser(command: _Subcommand) -> None:
     ret.add_argument(
         "--annotation", help="the hand pair's annotation, .json (default: made for procedural hands)"
     )
-    ret.add_argument("--workers", type=int, help="worker processes (default: one per CPU)")
+    ret.add_argument("--workers", type=_count(), help="worker processes (default: one per CPU)")
     ret.add_argument(
         "--scheduler", help="address of a Dask scheduler to send the frames to (default: none, solve here)"
     )
-    ret.add_argument("--control", type=int, help="spline control points per DOF (default: 10 per second)")
+    ret.add_argument(
+        "--control", type=_count(_SPLINE_LEAST, "a cubic spline's degree + 1"),
+        help="spline control points per DOF (default: 10 per second)",
+    )  # fmt: skip
     ret.add_argument(
         "--weight", action="append", type=_weight, metavar="NAME=VALUE",
         help="an Eq. 3 weight: m (markers), c (contacts), cd, cn, t (table), j (prior); repeatable "
@@ -791,21 +826,45 @@ def _interrupted(args: argparse.Namespace) -> str:
     return "interrupted"
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, a service manager, a job scheduler's time limit), raised where the command is so
+    that it ends as Ctrl-C does: worker processes stopped and joined, what is solved kept, one line."""
+
+
+def _terminate(signum, frame) -> None:
+    raise _Terminated
+
+
+@contextlib.contextmanager
+def _sigterm_as_ctrl_c() -> Iterator[None]:
+    """While the block runs (in the main thread: only it can set handlers), SIGTERM raises
+    :class:`_Terminated`, a KeyboardInterrupt. Killed by the default action instead, the process would
+    run no cleanup: its worker processes' queues and semaphores would be left to the resource tracker,
+    which prints "leaked semaphore objects", and nothing would say what is kept."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if getattr(args, "repeat", 1) < 1:
-        parser.error("--repeat must be at least 1")
     name = _command(args)
     try:
-        return args.run(args)
-    except KeyboardInterrupt:
+        with _sigterm_as_ctrl_c():
+            return args.run(args)
+    except KeyboardInterrupt as err:
         if args.debug:
             import traceback
 
             traceback.print_exc()
         print(f"contact-edit {name}: {_interrupted(args)}", file=sys.stderr, flush=True)
-        return 130
+        return 128 + signal.SIGTERM if isinstance(err, _Terminated) else 130
     except Exception as err:
         if args.debug:
             import traceback

@@ -6,7 +6,8 @@ by joint from the knuckles) to see where the pads land; transfer each pad onto t
 hand again and key it; solve the pose from the contacts alone and key it 23 frames later. The scene is
 saved with its contacts, the contact pairing is written as a file for ``contact-edit pose``, and a
 small Cycles render (denoised, on a floor with soft shadows) shows the grasp. What the solve reaches is
-measured, not assumed: which pads touch the mug and how deep the hand is inside it.
+measured, not assumed: which pads touch the mug and how deep the hand is inside it (its deepest vertex,
+and the deepest point of its faces, which can cut the mug's rim between vertices).
 """
 
 from __future__ import annotations
@@ -54,6 +55,7 @@ class DemoResult:
     transferred: tuple[str, ...]
     touching: tuple[str, ...]
     deepest: float
+    deepest_face: float
     contacts: int
     summary: str
     seconds: float
@@ -102,7 +104,7 @@ def run(out: Path, render: bool = True, progress: Callable[[str], None] = lambda
     bpy.ops.contact_edit.solve(stage="ALL", keyframe=True)
     scene.frame_start, scene.frame_end = OPEN_FRAME, GRASP_FRAME
     problem = posing.problem(scene)  # the solved pose as the scene holds it now, measured
-    met = posing.touch(problem, problem.theta0)
+    met = posing.touch(problem, problem.theta0, faces=True)
 
     contacts_file = out / FILES["contacts"]
     store.save_pairing(contacts_file, hand_obj, mug)
@@ -122,6 +124,7 @@ def run(out: Path, render: bool = True, progress: Callable[[str], None] = lambda
         transferred=tuple(landed),
         touching=met.touching,
         deepest=float(met.deepest or 0.0),
+        deepest_face=float(met.deepest_face or 0.0),
         contacts=sum(len(hand_set[name]) for name in landed),
         summary=scene.contact_edit.last_solve,
         seconds=time.perf_counter() - start,

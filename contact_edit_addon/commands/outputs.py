@@ -6,6 +6,8 @@ writes, including those it writes inside an output folder, is compared with each
 case-insensitive file system accepts). An output that is an input is refused even with ``--overwrite``:
 the command would destroy what it reads, and with a format the input's readers do not expect (a motion
 zip over a hand's OBJ). An existing output that is not an input is replaced only with ``--overwrite``.
+A command whose output has one format (``pose`` writes a .blend, ``synthesize`` and ``import-grab`` a
+motion .npz) refuses an output named with another extension, which would hide what the file holds.
 """
 
 from __future__ import annotations
@@ -26,8 +28,10 @@ def check_outputs(
     error: type[Exception] = FileExistsError,
     folders: Iterable = (),
     instead: str = "choose another output",
+    suffix: str | None = None,
 ) -> None:
-    """Refuse outputs that are inputs, and existing outputs unless ``overwrite``; raise ``error``.
+    """Refuse outputs that are inputs, existing outputs unless ``overwrite``, and outputs whose extension
+    is not the format written; raise ``error``.
 
     Parameters
     ----------
@@ -44,12 +48,22 @@ def check_outputs(
         anywhere inside one is refused.
     instead : str
         What to do about an output that is an input (``"choose another output folder (-o)"``).
+    suffix : str, optional
+        The extension of the one format the command writes (``".blend"``): an output named otherwise (a
+        .blend written as ``o11.txt``) is refused, saying which extension is expected. Any case.
     """
     named = {Path(path): what for path, what in inputs.items() if path is not None}
     for output in map(Path, outputs):
         for path, what in named.items():
             if _same(output, path):
                 raise error(f"{output} is {what}: an input, never written, even with {OVERWRITE}; {instead}")
+        if suffix is not None and output.suffix.lower() != suffix.lower():
+            stem = Path(output.stem)  # "o11.txt" -> "o11.blend"; "o11.blend.tmp" -> "o11.blend"
+            named_so = stem.name if stem.suffix.lower() == suffix.lower() else f"{stem.name}{suffix}"
+            raise error(
+                f"{output}: the output is written as a {suffix} file, so its name must end in {suffix} "
+                f"(e.g. {named_so})"
+            )
         if not overwrite and os.path.lexists(output):
             raise error(f"{output} exists; {instead}, or pass {OVERWRITE} to replace it")
     for folder in map(Path, folders):

@@ -21,6 +21,7 @@ import zipfile
 from collections.abc import Callable, Mapping
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from numbers import Integral
 from pathlib import Path
 from typing import Any
 
@@ -101,12 +102,17 @@ _worker_shared: Any = None
 
 
 def _start_worker(shared: Any) -> None:
-    """A worker's start: it keeps the shared data, and leaves Ctrl-C to the process that started it (a
-    terminal's Ctrl-C reaches every process of its group: workers would die mid-frame, each with its
-    own traceback; instead the caller stops handing out frames and the workers finish theirs)."""
+    """A worker's start: it keeps the shared data, and leaves Ctrl-C and SIGTERM to the process that
+    started it. A terminal's Ctrl-C reaches every process of its group, and so does the SIGTERM of
+    ``timeout`` or of a service manager: workers would die mid-frame, each with its own traceback, and
+    the frames queued for them would fill the pipe to them, which then no process reads, so that the
+    caller could not shut the pool down. Instead the caller stops handing out frames, the workers finish
+    those already sent to them, and the pool's shutdown ends them: each then reads its end-of-work
+    marker (also when another worker died and the pool is broken)."""
     global _worker_shared
     _worker_shared = shared
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
 def _call_with_worker_shared(solve: Callable[[Any, Any], Result], task: Any) -> Result:
@@ -135,12 +141,13 @@ def run_frames(
     store : FrameStore
         Where results go as they finish; frames already there are not solved again.
     workers : int, optional
-        Worker processes on this machine (default: one per CPU; 1 solves in this process).
+        Worker processes on this machine, at least 1 (default: one per CPU; 1 solves in this process).
     scheduler : str, optional
         Address of a Dask distributed scheduler (``"tcp://host:8786"``) to send the tasks to instead.
     progress : callable, optional
         ``progress(done, total)`` after each frame (frames found in the store count as done).
     """
+    check_workers(workers)
     done = store.done() & set(tasks)
     todo = [f for f in tasks if f not in done]
     total = len(tasks)
@@ -154,6 +161,17 @@ def run_frames(
                 solve, shared, tasks, todo, store, workers or os.cpu_count() or 1, report, total, len(done)
             )
     return {f: store.load(f) for f in sorted(tasks)}
+
+
+def check_workers(workers) -> None:
+    """Refuse a worker count that is not a whole number of at least 1 (None, the default, is fine): 0
+    is not "the default", nor a negative count one process."""
+    if workers is not None and (
+        not isinstance(workers, Integral) or isinstance(workers, bool) or workers < 1
+    ):
+        raise SolverError(
+            f"workers must be a whole number of at least 1 or None for one per CPU, got {workers!r}"
+        )
 
 
 def _run_locally(solve, shared, tasks, todo, store, workers, report, total, done) -> None:
@@ -195,7 +213,8 @@ def _run_on_cluster(solve, shared, tasks, todo, store, scheduler, report, total,
         from distributed import Client, as_completed
     except ImportError:
         raise SolverError(
-            'sending frames to a Dask cluster needs dask.distributed: pip install "contact-edit[cluster]"'
+            'sending frames to a Dask cluster needs dask.distributed: pip install -e ".[cluster]" in the '
+            "checkout"
         ) from None
     try:
         client = Client(scheduler, timeout="10s")

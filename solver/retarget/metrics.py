@@ -472,7 +472,7 @@ def plot_metrics(
         from matplotlib.figure import Figure
     except ImportError:
         raise SolverError(
-            f"{path}: plotting needs matplotlib, which is optional: pip install 'contact-edit[plots]'"
+            f"{path}: plotting needs matplotlib, which is optional: pip install -e '.[plots]' in the checkout"
         ) from None
 
     w, h = (int(v) for v in size)

@@ -41,6 +41,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field, fields, replace
 from functools import cached_property
+from numbers import Integral
 from pathlib import Path
 from typing import NamedTuple
 
@@ -52,7 +53,7 @@ from ..errors import SolverError
 from ..rig import Rig, SkinnedMesh
 from .annotations import HandPairAnnotation
 from .baselines import Table, keypoint_tasks, keyvector_tasks, reseeded, solve_task
-from .executor import FrameStore, run_frames
+from .executor import FrameStore, check_workers, run_frames
 from .frames import (
     HandSpec,
     RetargetWeights,
@@ -64,7 +65,7 @@ from .interchange import save_kmexp
 from .metrics import IntersectionMeter, Intersections, mean_distances
 from .motion import Motion
 from .refine import E_ACC, MAX_ITERATIONS, MIN_PROGRESS, RefineLog, refine_trajectory, remaining_work
-from .spline import SplineFit, fit_bspline
+from .spline import DEGREE, SplineFit, fit_bspline
 from .transfer import TransferredContacts, transfer_motion
 
 #: The stages a retarget reports progress for, in order.
@@ -125,6 +126,15 @@ class RetargetOptions:
     use_table: bool = True
     intersections: bool = True
     baselines: bool = False
+
+    def __post_init__(self):
+        # Checked here, not when the spline stage comes to it after every frame's solves.
+        n = self.n_control
+        if n is not None and (not isinstance(n, Integral) or isinstance(n, bool) or n < DEGREE + 1):
+            raise SolverError(
+                f"n_control must be a whole number of at least {DEGREE + 1} (a cubic spline's degree + 1) "
+                f"or None for the default, got {n!r}"
+            )
 
 
 @dataclass(frozen=True, eq=False)
@@ -294,7 +304,7 @@ def retarget(
         ``folder/refine-NN``, ``folder/metrics-<digest of the final curves>``); an interrupted retarget
         into the same folder resumes. Default: a temporary folder, removed afterwards.
     workers : int, optional
-        Worker processes (default: one per CPU; 1 solves in this process).
+        Worker processes, at least 1 (default: one per CPU; 1 solves in this process).
     scheduler : str, optional
         A Dask distributed scheduler's address to send the frames to instead.
     contacts : TransferredContacts, optional
@@ -309,6 +319,7 @@ def retarget(
         For mismatched inputs, a folder holding another run's results, or failed solves.
     """
     options = options or RetargetOptions()
+    check_workers(workers)
     target = hand.build() if isinstance(hand, HandSpec) else hand
     if not isinstance(target, SkinnedMesh):
         raise SolverError(f"hand must be a HandSpec or a SkinnedMesh, got {type(hand).__name__}")
@@ -543,7 +554,7 @@ class _Run:
         """Stage 4: the first fit, of the paper's count and more (:func:`_control_counts`), whose curves
         leave the contacts (or markers) within :data:`FIT_BAR` of the per-frame ``estimate``'s
         (contact, marker) distances; else the best, with warnings saying why."""
-        counts = [self.options.n_control] if self.options.n_control else _control_counts(
+        counts = [self.options.n_control] if self.options.n_control is not None else _control_counts(
             self.default_control, self.frames
         )  # fmt: skip
         # Leaving out what refinement could not smooth (§3.4.3) first; if no count fits that way, all
