@@ -264,6 +264,19 @@ def test_the_transfer_is_previewed_under_the_mouse_then_stored_and_paired(transf
     assert coloured("transferred") > 100
 
 
+def test_move_acts_on_the_patch_under_the_cursor_and_keeps_the_grab_offset(transfer):
+    """Issue 37: with the hand active, Shift+Alt+M aimed at the mug's copy moved the hand's own pad, and
+    the patch's axis start jumped to the cursor. Now the copy under the cursor moves, by what the cursor
+    moved over the mug, not to the cursor (held well away from its axis start, on a smooth part)."""
+    move = transfer.results["move"]
+    assert move["hand_unchanged"] and move["active"] == move["hand"]
+    assert move["mug_active_patch"] == transfer.results["hand_patches"][0][0]
+    assert move["cursor_moved"] > 1e-3 and move["held_from_start"] > 0.3 * move["patch_length"]
+    # moved by the cursor's move, taken to the surface at its axis start (which faces another way)
+    assert 0.3 < move["start_moved"] / move["cursor_moved"] < 1.5
+    assert move["start_from_cursor"] > 0.5 * move["held_from_start"]  # not to the cursor
+
+
 def test_a_solve_shows_its_progress_esc_keeps_the_best_pose_and_right_click_puts_it_back(transfer):
     results = transfer.results
     assert results["first_pose_after"] < 5.0  # software OpenGL on two busy cores

@@ -10,8 +10,10 @@ import contextlib
 import math
 
 import bpy
+import numpy as np
+from bpy_extras import view3d_utils
 
-from .. import store
+from .. import bridge, store
 from ..ui import overlays
 from .common import (
     NAVIGATION,
@@ -23,6 +25,37 @@ from .common import (
     need_patch,
     ray_hit,
 )
+
+
+def patch_under_cursor(context, event):
+    """The contact patch under the mouse on the scene's hand or object, nearest the view: (object, patch
+    name, world point hit), or None where the mouse is over neither or over no patch of the one it hits.
+
+    A hit is on a patch when it lies within two point spacings of one of its points (the spacing of a
+    patch of ``k`` points and radius ``r`` taken as ``r √(π / k)``)."""
+    settings = context.scene.contact_edit
+    origin = np.array(view3d_utils.region_2d_to_origin_3d(
+        context.region, context.region_data, (event.mouse_region_x, event.mouse_region_y)
+    ))  # fmt: skip
+    hits = []
+    for obj in dict.fromkeys((settings.hand, settings.target)):
+        if obj is not None and obj.type == "MESH" and store.text(obj):
+            hit = ray_hit(context, event, obj)
+            if hit is not None:
+                hits.append((float(np.linalg.norm(hit[0] - origin)), obj, hit[0]))
+    if not hits:
+        return None
+    _, obj, point = min(hits, key=lambda h: h[0])
+    contacts = store.load(obj, deformed=obj == settings.hand)  # where the evaluated (posed) skin shows them
+    local = bridge.world_to_object(obj, point[None])[0]
+    best = None
+    for name in contacts:
+        positions = contacts[name].positions()
+        gap = float(np.min(np.linalg.norm(positions - local, axis=1)))
+        radius = float(np.max(np.linalg.norm(positions - positions.mean(axis=0), axis=1)))
+        if gap <= 2 * radius * math.sqrt(math.pi / len(positions)) and (best is None or gap < best[0]):
+            best = (gap, name)
+    return None if best is None else (obj, best[1], point)
 
 
 class _PatchEdit(HotkeyTool):
@@ -54,6 +87,14 @@ class _PatchEdit(HotkeyTool):
     def invoke(self, context, event):
         if context.area is None or context.area.type != "VIEW_3D":
             return self.execute(context)
+        self._grab = None  # the world point the drag holds: where the patch was picked, or first dragged
+        in_view = context.region is not None and context.region.type == "WINDOW"
+        if in_view and not (self.patch or self.object_name):  # a hotkey over the viewport, not a button
+            picked = patch_under_cursor(context, event)
+            if picked is not None:
+                obj, self.patch, self._grab = picked
+                self.object_name = obj.name
+                store.set_active(obj, store.entries(obj).find(self.patch))
         self._obj, self._start, self._name = self._target(context)
         self._result = None
         self._mouse = (event.mouse_region_x, event.mouse_region_y)
@@ -110,10 +151,17 @@ class CONTACT_EDIT_OT_translate(_PatchEdit, bpy.types.Operator):
 
     def drag(self, context, event):
         hit = ray_hit(context, event, self._obj)
-        if hit is not None:
-            self.location = hit[0]
-            to = nearest_point(self._obj, self._start.mesh, hit[0])
-            self.attempt(lambda: self._start.translate(self._name, to))
+        if hit is None:
+            return
+        if self._grab is None:
+            self._grab = hit[0]
+        # The patch moves by what the cursor moved from where it grabbed the patch, as Blender's G moves
+        # what it holds: it does not jump to the cursor. (The axis start moves by the cursor's move, taken
+        # to the surface nearest; across a tight curve the point held drifts from under the cursor.)
+        start = self._start[self._name].axis.points[0:1].positions(self._start.mesh)
+        self.location = bridge.object_to_world(self._obj, start)[0] + (hit[0] - self._grab)
+        to = nearest_point(self._obj, self._start.mesh, self.location)
+        self.attempt(lambda: self._start.translate(self._name, to))
 
 
 class CONTACT_EDIT_OT_rotate(_PatchEdit, bpy.types.Operator):

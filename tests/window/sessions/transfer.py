@@ -77,6 +77,55 @@ def steps(s):
     s.record("paired", [(e.name, e.pair) for e in hand.contact_edit.patches])
     yield from s.shot("transferred")
 
+    # Move's hotkey with the hand active, aimed at the mug's copy well away from its axis start: the copy
+    # moves, not the hand's patch, and keeps its offset from the point held (it does not jump).
+    store, common = addon("store"), addon("operators.common")
+    name = mug.contact_edit.patches[0].name
+
+    def axis_start(obj):
+        contacts = store.load(obj)
+        return bridge.object_to_world(obj, contacts[name].axis.points[0:1].positions(contacts.mesh))[0]
+
+    def on_mug(x, y):
+        with view.override():
+            hit = common.ray_hit(bpy.context, _Mouse(view, x, y), mug)
+        return None if hit is None else hit[0]
+
+    def held_on_a_smooth_part(k) -> bool:
+        """Whether patch point k shows under its pixel, and the drag's pixels stay on the same part of
+        the mug (not across the handle's edge to the wall behind it)."""
+        x, y = view.project([points[k]])[0]
+        hits = [on_mug(x - 2 * i, y - i) for i in range(5)]
+        return all(h is not None for h in hits) and (
+            np.linalg.norm(hits[0] - points[k]) < 1.5e-3 and np.linalg.norm(hits[-1] - hits[0]) < 5e-3
+        )
+
+    start = axis_start(mug)
+    points = bridge.object_to_world(mug, store.load(mug)[name].positions())
+    away = np.linalg.norm(points - start, axis=1)
+    k = next(k for k in np.argsort(np.abs(away - 0.6 * away.max())) if held_on_a_smooth_part(k))
+    gx, gy = view.project([points[k]])[0]
+    hand_patches = hand.contact_edit.data
+    yield from s.move(gx, gy)
+    grabbed = on_mug(gx, gy)
+    yield from s.key("shift+alt+m")
+    for i in range(1, 5):
+        yield from s.move(gx - 2 * i, gy - i, settle=0.1)
+    released = on_mug(gx - 8, gy - 4)
+    yield from s.shot("moving")
+    s.xdotool("click", "1")
+    yield 0.4
+    s.record("move", {
+        "cursor_moved": float(np.linalg.norm(released - grabbed)),
+        "start_moved": float(np.linalg.norm(axis_start(mug) - start)),
+        "start_from_cursor": float(np.linalg.norm(axis_start(mug) - released)),
+        "held_from_start": float(np.linalg.norm(grabbed - start)), "patch_length": float(away.max()),
+        "hand_unchanged": hand.contact_edit.data == hand_patches,
+        "active": bpy.context.view_layer.objects.active.name, "hand": hand.name,
+        "mug_active_patch": store.active_patch_name(mug),
+    })  # fmt: skip
+    yield from s.shot("moved")
+
     # Solve: the pose improves on screen; Esc stops and keeps the best pose. The patches are big and the
     # hand starts turned away from the mug, so that the solve takes long enough to be stopped.
     hand.select_set(True)
