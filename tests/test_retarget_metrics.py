@@ -247,6 +247,6 @@ def test_without_matplotlib_plotting_says_how_to_get_it(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "matplotlib", None)
     monkeypatch.setitem(sys.modules, "matplotlib.figure", None)
     monkeypatch.setitem(sys.modules, "matplotlib.backends.backend_agg", None)
-    with pytest.raises(SolverError, match=r"contact-edit\[plots\]"):
+    with pytest.raises(SolverError, match=r"pip install -e '\.\[plots\]' in the checkout"):
         plot_metrics(tmp_path / "x.png", 120.0, marker_distance=np.ones(10))
     assert not (tmp_path / "x.png").exists()
