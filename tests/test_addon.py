@@ -81,7 +81,8 @@ def test_extension_validates_installs_enables_and_uninstalls(extension, tmp_path
         pads = [v.co.z < -0.005 and v.co.y > 0.17 for v in hand.data.vertices]
         hand.data.vertices.foreach_set("select", pads)
         bpy.ops.contact_edit.paint(name="tip", source="SELECTION")
-        bpy.ops.contact_edit.transfer(patch="tip", location=(0, 0, 0.04), direction=(0, 1, 0))
+        top = bpy.context.scene.contact_edit.target.location + __import__("mathutils").Vector((0, 0, 0.04))
+        bpy.ops.contact_edit.transfer(patch="tip", location=top, direction=(0, 1, 0))
         solved = bpy.ops.contact_edit.solve(stage="ALL")
         summary = bpy.context.scene.contact_edit.last_solve
         repos = [r.module for r in bpy.context.preferences.extensions.repos]
@@ -586,3 +587,32 @@ def test_panel_messages_wrap_to_the_sidebar_width_instead_of_being_cut(tmp_path)
         assert " ".join(case["lines"]) == text
         assert max(case["widths"]) <= case["room"] and len(case["lines"]) >= 2
     assert len(out["200@1.0"]["lines"]) > len(out["291@1.0"]["lines"])
+
+
+def test_the_example_lands_clear_of_the_startup_cube(tmp_path):
+    """Issue 37: *Add › Contact Edit › Example* in Blender's startup scene put the hand and mug inside the
+    default 2 m cube (the view showed grey walls). They land beside it, the mug still at the hand."""
+    out = run_blender(
+        """
+        import numpy as np
+        import contact_edit_addon
+        contact_edit_addon.register()
+        bpy.ops.wm.read_factory_settings()
+        from mathutils import Vector
+        def box(obj):
+            corners = np.array([tuple(obj.matrix_world @ Vector(c)) for c in obj.bound_box])
+            return corners.min(0).tolist(), corners.max(0).tolist()
+        bpy.ops.contact_edit.add_example()
+        scene = bpy.context.scene
+        hand, mug = scene.contact_edit.hand, scene.contact_edit.target
+        result(dict(cube=box(bpy.data.objects["Cube"]), hand=box(hand), mug=box(mug),
+                    active=bpy.context.view_layer.objects.active.name))
+        """,
+        tmp_path,
+    )
+    cube = np.array(out["cube"])
+    for name in ("hand", "mug"):
+        lo, hi = np.array(out[name])
+        assert not np.all((lo < cube[1]) & (cube[0] < hi)), name
+    (h_lo, h_hi), (m_lo, m_hi) = np.array(out["hand"]), np.array(out["mug"])
+    assert np.linalg.norm((h_lo + h_hi) / 2 - (m_lo + m_hi) / 2) < 0.2 and out["active"] == "Hand"

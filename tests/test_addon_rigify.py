@@ -4,6 +4,7 @@ must pose its controls and reproduce Blender's deformation through every constra
 
 import importlib.util
 
+import numpy as np
 import pytest
 
 from .blender import run_blender
@@ -327,3 +328,28 @@ def test_flex_to_contact_curls_the_fk_finger_controls(rigify_blend, tmp_path):
     assert {"f_index.01.R", "f_middle.01.R"} <= set(out["moved"])
     assert set(out["moved"]) <= {f"f_{f}.0{k}.R" for f in ("index", "middle") for k in (1, 2, 3)}
     assert out["deepest"] > -2e-4  # touching, not sinking in
+
+
+def test_a_mug_added_after_a_rigify_hand_lands_beside_it(rigify_blend, tmp_path):
+    """Issue 37: *Add › Mug* after *Add › Rigify Hand* put the mug at the world origin, 1.22 m below the
+    hand at arm height. It lands beside the scene's hand, clear of it, within a hand length."""
+    out = run_blender(
+        """
+        scene.contact_edit.hand = hand
+        bpy.ops.contact_edit.add_object(shape="mug")
+        mug = scene.contact_edit.target
+        from mathutils import Vector
+        def box(obj):
+            corners = np.array([tuple(obj.matrix_world @ Vector(c)) for c in obj.bound_box])
+            return corners.min(0).tolist(), corners.max(0).tolist()
+        result(dict(hand=box(hand), mug=box(mug), length=kit.length, name=mug.name))
+        """,
+        tmp_path,
+        setup=f"PATH = {str(rigify_blend)!r}\n" + SETUP,
+    )
+    h_lo, h_hi = np.array(out["hand"])
+    m_lo, m_hi = np.array(out["mug"])
+    assert out["name"] == "Mug"
+    assert not np.all((m_lo < h_hi) & (h_lo < m_hi))  # clear of the hand
+    gap = np.linalg.norm((m_lo + m_hi) / 2 - (h_lo + h_hi) / 2)
+    assert gap < out["length"]  # within a hand length of it
