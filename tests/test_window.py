@@ -284,9 +284,11 @@ def test_a_solve_shows_its_progress_esc_keeps_the_best_pose_and_right_click_puts
     assert results["after_escape"].endswith("stopped by you; kept the best pose")
     assert results["moved_by_escape"] > 0
     assert results["cancel_restored"]
-    assert results["after_cancel"] == "Cancelled; the pose is as it was before the solve"
+    # the panel still says how the last solve left the pose, which the cancel puts back (issue 37)
+    assert results["after_cancel"] == results["after_escape"]
     reports = results["reports"]
-    assert reports[-2] == results["after_escape"] and reports[-1] == results["after_cancel"]
+    assert reports[-2] == results["after_escape"]
+    assert reports[-1] == "Cancelled; the pose is as it was before the solve"
     assert "solving" in transfer.shots
 
 

@@ -128,10 +128,11 @@ class CONTACT_EDIT_OT_paint(Background, HotkeyTool, bpy.types.Operator):
         context.window.cursor_modal_set("CROSSHAIR")
         context.window_manager.modal_handler_add(self)
         self._show_brush(context, event)
-        context.area.header_text_set(
+        self._hint = (
             f"Paint on '{self._object.name}': drag · Shift: add to the active patch · Ctrl: take away · "
             "F: radius · Esc: cancel"
         )
+        context.area.header_text_set(self._hint)
         return {"RUNNING_MODAL"}
 
     @guarded
@@ -152,6 +153,8 @@ class CONTACT_EDIT_OT_paint(Background, HotkeyTool, bpy.types.Operator):
                     "INVOKE_DEFAULT", data_path_primary="scene.contact_edit.brush_radius"
                 )
                 return {"RUNNING_MODAL"}
+            # The radial control clears the header when it ends: the brush's keys are still live.
+            context.area.header_text_set(self._hint)
         if event.type == "LEFTMOUSE" and event.value == "PRESS" and not self._painting:
             self._painting = True
             self.mode = "SUBTRACT" if event.ctrl else "ADD" if event.shift else "NEW"

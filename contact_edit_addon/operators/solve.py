@@ -87,10 +87,11 @@ class CONTACT_EDIT_OT_solve(Background, HotkeyTool, bpy.types.Operator):
                 f"({terms})"
             )
 
+        before = context.scene.contact_edit.last_solve  # what the panel says of the pose a cancel puts back
+
         def restore(context) -> set:
-            return self._put_back(
-                context, problem, {"INFO"}, "Cancelled; the pose is as it was before the solve"
-            )
+            message = "Cancelled; the pose is as it was before the solve"
+            return self._put_back(context, problem, {"INFO"}, message, panel=before)
 
         def failed(context, error) -> set:
             return self._put_back(
@@ -111,10 +112,11 @@ class CONTACT_EDIT_OT_solve(Background, HotkeyTool, bpy.types.Operator):
         warn = off or (outcome or result.status) in posing.WARNINGS
         self.report({"WARNING"} if warn else {"INFO"}, message)
 
-    def _put_back(self, context, problem, level: set, message: str) -> set:
-        """The pose the solve started from, and ``message`` on the panel and in a report."""
+    def _put_back(self, context, problem, level: set, message: str, panel: str | None = None) -> set:
+        """The pose the solve started from, and ``message`` in a report and on the panel (or ``panel``
+        there: after a cancel, what it said of the pose put back)."""
         problem.apply(problem.theta0)
-        context.scene.contact_edit.last_solve = message
+        context.scene.contact_edit.last_solve = message if panel is None else panel
         self.report(level, message)
         return {"CANCELLED"}
 

@@ -100,8 +100,9 @@ class VIEW3D_PT_contact_edit_patches(SubPanel, bpy.types.Panel):
         if _may_have_annotation(context, obj):
             layout.row().prop(obj.contact_edit, "layer", expand=True)
         _, listed, active = store.LAYERS[obj.contact_edit.layer]
+        rows = min(max(len(getattr(obj.contact_edit, listed)), 3), 8)  # every patch shown, up to eight
         layout.template_list(
-            "CONTACT_EDIT_UL_patches", "", obj.contact_edit, listed, obj.contact_edit, active, rows=3
+            "CONTACT_EDIT_UL_patches", "", obj.contact_edit, listed, obj.contact_edit, active, rows=rows
         )
         entry = store.active_entry(obj)
         if obj.contact_edit.layer == "ANNOTATION" and entry is not None:

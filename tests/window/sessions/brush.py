@@ -92,6 +92,8 @@ def steps(s):
     s.xdotool("click", 1)
     yield 0.4
     s.record("radius_after", settings.brush_radius)
+    yield from s.move(path[0][0] + 4, path[0][1])
+    yield from s.shot("brush_after_resize")  # the brush's keys still in the header (issue 37)
     settings.brush_radius = 25
 
     # The stroke's patch is made off the main thread: Blender keeps drawing and taking input meanwhile,
