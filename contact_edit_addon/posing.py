@@ -381,6 +381,25 @@ def check_rig(scene: bpy.types.Scene) -> RigReport:
     return report
 
 
+@bpy.app.handlers.persistent
+def _check_rigs_after_load(*_args) -> None:
+    """Say how each scene's hand is solved as soon as a file is open, as when the hand was chosen (the
+    reports are not saved: the Rig box was empty until the hand was chosen again)."""
+    _reports.clear()
+    for scene in bpy.data.scenes:
+        if scene.contact_edit.hand is not None:
+            check_rig(scene)
+
+
+def register() -> None:
+    bpy.app.handlers.load_post.append(_check_rigs_after_load)
+
+
+def unregister() -> None:
+    if _check_rigs_after_load in bpy.app.handlers.load_post:
+        bpy.app.handlers.load_post.remove(_check_rigs_after_load)
+
+
 #: Modifiers after the Armature modifier that only refine, re-triangulate, mirror or re-shade the skin it
 #: deforms: the solve works on that skin (the cage) and Blender shows it as they make it.
 REFINING = {"SUBSURF", "TRIANGULATE", "WEIGHTED_NORMAL", "NORMAL_EDIT", "MIRROR", "EDGE_SPLIT"}

@@ -17,7 +17,7 @@ import bpy
 
 from solver.retarget import make_next_procedural_topology
 
-from . import operators, properties
+from . import operators, posing, properties
 from .assets import operators as add_menu
 from .device import operators as device_operators
 from .device import panel as device_panel
@@ -44,7 +44,9 @@ classes = (
 )
 #: What else the add-on adds to Blender (pointer properties on its types, handlers, menus, draw callbacks,
 #: hotkeys), once the classes are registered; taken away in the reverse order, before them.
-modules = (properties, device_properties, retarget_properties, device_session, add_menu, overlays, keymaps)
+modules = (
+    properties, device_properties, retarget_properties, device_session, posing, add_menu, overlays, keymaps
+)  # fmt: skip
 
 register_classes, unregister_classes = bpy.utils.register_classes_factory(classes)
 

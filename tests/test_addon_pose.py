@@ -290,6 +290,28 @@ def test_keying_follows_the_key_toggle_from_every_entry_point(tmp_path):
         assert "keyframe" not in out["hotkeys"][tool]
 
 
+def test_a_reopened_file_says_how_its_hand_is_solved(tmp_path):
+    """Issue 37: after reopening a file the Rig box was empty until the hand was chosen again (the
+    reports live in memory, not in the file); a file now says it as soon as it is open."""
+    out = run_blender(
+        f"""
+        before = posing.rig_report(scene)
+        path = {str(tmp_path / "reopened.blend")!r}
+        bpy.ops.wm.save_as_mainfile(filepath=path)
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        emptied = posing.rig_report(bpy.context.scene)
+        bpy.ops.wm.open_mainfile(filepath=path)
+        after = posing.rig_report(bpy.context.scene)
+        result(dict(before=[before.ok, *before.lines], emptied=emptied is None,
+                    after=None if after is None else [after.ok, *after.lines]))
+        """,
+        tmp_path,
+        setup=SETUP + MOULD,
+    )
+    assert out["emptied"] and out["before"][0]
+    assert out["after"] == out["before"]
+
+
 def test_a_fresh_solve_starts_from_the_grasp_and_names_a_patch_out_of_reach(tmp_path):
     """Start FRESH solves from the grasp the contacts imply (the root free to travel): it recovers the
     mould's pose; without the root free it says why; a summary names the patch the others keep out of
