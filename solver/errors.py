@@ -6,11 +6,13 @@ offending indices are also kept as arrays so that a user interface can select th
 
 from __future__ import annotations
 
+from numbers import Integral
+
 import numpy as np
 
 from geodesics.errors import describe_ids
 
-__all__ = ["SolverError", "describe_ids"]
+__all__ = ["SolverError", "check_count", "describe_ids"]
 
 
 def _ids(values) -> np.ndarray:
@@ -32,3 +34,12 @@ class SolverError(ValueError):
         self.dofs = _ids(dofs)
         self.vertices = _ids(vertices)
         self.contacts = _ids(contacts)
+
+
+def check_count(value, name: str, least: int = 1, note: str = "") -> int:
+    """``value`` as an int, refused (:class:`SolverError`) unless it is a whole number of at least ``least``
+    (an ``Integral``, not a bool: 2.0 is not a count); ``note`` ends the message (what the bound is for,
+    what else is accepted)."""
+    if isinstance(value, bool) or not isinstance(value, Integral) or value < least:
+        raise SolverError(f"{name} must be a whole number of at least {least}{note}, got {value!r}")
+    return int(value)

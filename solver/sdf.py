@@ -32,7 +32,7 @@ import numpy as np
 
 from geodesics import ClosestPoints, TriMesh
 
-from .errors import SolverError, describe_ids
+from .errors import SolverError, check_count, describe_ids
 
 
 def _points(x) -> np.ndarray:
@@ -173,8 +173,7 @@ def deepest_in_faces(solid, vertices, faces, steps: int = FACE_STEPS) -> float:
     F = np.asarray(faces)
     if V.ndim != 2 or V.shape[1] != 3 or F.ndim != 2 or F.shape[1] != 3:
         raise SolverError(f"vertices must have shape (n, 3) and faces (m, 3), got {V.shape} and {F.shape}")
-    if int(steps) != steps or steps < 1:
-        raise SolverError(f"steps must be a whole number of at least 1, got {steps!r}")
+    check_count(steps, "steps")
     if F.size == 0:
         return 0.0
     at_vertices = solid.evaluate(V)[0]

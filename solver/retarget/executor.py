@@ -21,7 +21,6 @@ import zipfile
 from collections.abc import Callable, Mapping
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from numbers import Integral
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +28,7 @@ import numpy as np
 
 from geodesics.files import atomic_file, write_atomically
 
-from ..errors import SolverError
+from ..errors import SolverError, check_count
 
 #: A frame's result: named arrays and numbers (what an .npz holds).
 Result = Mapping[str, Any]
@@ -166,12 +165,8 @@ def run_frames(
 def check_workers(workers) -> None:
     """Refuse a worker count that is not a whole number of at least 1 (None, the default, is fine): 0
     is not "the default", nor a negative count one process."""
-    if workers is not None and (
-        not isinstance(workers, Integral) or isinstance(workers, bool) or workers < 1
-    ):
-        raise SolverError(
-            f"workers must be a whole number of at least 1 or None for one per CPU, got {workers!r}"
-        )
+    if workers is not None:
+        check_count(workers, "workers", note=" or None for one per CPU")
 
 
 def _run_locally(solve, shared, tasks, todo, store, workers, report, total, done) -> None:

@@ -41,7 +41,6 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field, fields, replace
 from functools import cached_property
-from numbers import Integral
 from pathlib import Path
 from typing import NamedTuple
 
@@ -49,7 +48,7 @@ import numpy as np
 
 from geodesics.files import write_atomically
 
-from ..errors import SolverError
+from ..errors import SolverError, check_count
 from ..rig import Rig, SkinnedMesh
 from .annotations import HandPairAnnotation
 from .baselines import Table, keypoint_tasks, keyvector_tasks, reseeded, solve_task
@@ -129,12 +128,9 @@ class RetargetOptions:
 
     def __post_init__(self):
         # Checked here, not when the spline stage comes to it after every frame's solves.
-        n = self.n_control
-        if n is not None and (not isinstance(n, Integral) or isinstance(n, bool) or n < DEGREE + 1):
-            raise SolverError(
-                f"n_control must be a whole number of at least {DEGREE + 1} (a cubic spline's degree + 1) "
-                f"or None for the default, got {n!r}"
-            )
+        if self.n_control is not None:
+            note = " (a cubic spline's degree + 1) or None for the default"
+            check_count(self.n_control, "n_control", DEGREE + 1, note)
 
 
 @dataclass(frozen=True, eq=False)
