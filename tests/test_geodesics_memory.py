@@ -1,0 +1,115 @@
+"""A whole-mesh exact field in bounded memory (issue 39): the answers are bit for bit what they were.
+
+Oracle: ``fixtures/exact_field_answers.npz`` holds every answer of :class:`GeodesicField` on the cases
+below (distances, sources and directions at random points of every face, at every vertex and on edges;
+whole paths to a sample of them) as computed before windows were stored compactly. They must come out
+equal with ``np.array_equal``, not merely close.
+"""
+
+from pathlib import Path
+
+import numpy as np
+
+from geodesics import GeodesicField, SurfacePoints
+from geodesics.primitives import cone, grid_plane, icosphere, scan_like_sphere, torus
+
+FIXTURE = Path(__file__).parent / "fixtures" / "exact_field_answers.npz"
+
+
+def _torus():
+    mesh = torus(n_major=40, n_minor=20)  # saddle vertices on the inner side
+    return mesh, SurfacePoints.from_vertices(mesh, [7])
+
+
+def _sphere_two_sources():
+    mesh = icosphere(3)
+    return mesh, SurfacePoints(np.array([3, 200]), np.array([[0.2, 0.3, 0.5], [0.6, 0.3, 0.1]]))
+
+
+def _cone_edge_source():
+    mesh = cone(n_around=24, n_along=10, jitter=0.2, seed=4)  # boundary on both rims
+    return mesh, SurfacePoints(np.array([40]), np.array([[0.0, 0.35, 0.65]]))
+
+
+def _scan():
+    mesh = scan_like_sphere(800, seed=2)
+    return mesh, SurfacePoints(np.array([11]), np.array([[0.1, 0.1, 0.8]]))
+
+
+def _plane():
+    mesh = grid_plane(16, 16, jitter=0.2, seed=5)
+    return mesh, SurfacePoints(np.array([100]), np.array([[0.3, 0.3, 0.4]]))
+
+
+CASES = {
+    "torus": _torus,
+    "sphere_two_sources": _sphere_two_sources,
+    "cone_edge_source": _cone_edge_source,
+    "scan": _scan,
+    "plane": _plane,
+}
+
+
+def probe_points(mesh, rng, per_face=2) -> SurfacePoints:
+    """``per_face`` random points in every face, every vertex, and a random point on every third edge."""
+    faces = np.repeat(np.arange(mesh.n_faces), per_face)
+    inside = SurfacePoints(faces, rng.dirichlet([1.0, 1.0, 1.0], faces.size))
+    vertices = SurfacePoints.from_vertices(mesh, np.arange(mesh.n_vertices))
+    he = np.arange(0, 3 * mesh.n_faces, 3) + rng.integers(0, 3, mesh.n_faces)
+    t = rng.uniform(0, 1, he.size)
+    bary = np.zeros((he.size, 3))
+    bary[np.arange(he.size), he % 3] = 1 - t
+    bary[np.arange(he.size), (he + 1) % 3] = t
+    edges = SurfacePoints(he // 3, bary)[::3]
+    return SurfacePoints(
+        np.concatenate([inside.faces, vertices.faces, edges.faces]),
+        np.concatenate([inside.bary, vertices.bary, edges.bary]),
+    )
+
+
+def answers(mesh, sources, paths=30) -> dict[str, np.ndarray]:
+    """Everything a whole-mesh field answers on ``mesh``: queries at :func:`probe_points`, the vertex
+    distances, and whole paths to ``paths`` of the probe points."""
+    field = GeodesicField(mesh, sources)
+    rng = np.random.default_rng(39)
+    points = probe_points(mesh, rng)
+    q = field.query(points)
+    out = {
+        "distances": q.distances,
+        "sources": q.sources,
+        "initial": q.initial_directions,
+        "final": q.final_directions,
+        "vertex_distance": field.vertex_distance,
+    }
+    lengths, ends, polylines, faces, bary, segments, nseg = [], [], [], [], [], [], []
+    for i in rng.choice(len(points), paths, replace=False):
+        path = field.path(points[[i]])
+        lengths.append([path.length, path.initial_direction.real, path.initial_direction.imag])
+        ends.append(len(path.polyline))
+        polylines.append(path.polyline)
+        faces.append(path.points.faces)
+        bary.append(path.points.bary)
+        segments.append(path.segment_directions)
+        nseg.append(len(path.segment_directions))
+    out.update(
+        path_numbers=np.array(lengths),
+        path_sizes=np.array(ends),
+        path_polylines=np.concatenate(polylines),
+        path_faces=np.concatenate(faces),
+        path_bary=np.concatenate(bary),
+        path_segments=np.concatenate(segments),
+        path_segment_counts=np.array(nseg),
+    )
+    return out
+
+
+def _check_saved(name):
+    saved = np.load(FIXTURE)
+    got = answers(*CASES[name]())
+    for key, value in got.items():
+        np.testing.assert_array_equal(value, saved[f"{name}/{key}"], err_msg=f"{name}: {key}")
+
+
+def test_answers_are_bit_identical_to_before():
+    for name in CASES:
+        _check_saved(name)
