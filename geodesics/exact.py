@@ -57,6 +57,9 @@ WINDOWS_KEPT_WHOLE = 1 << 21
 CHECKPOINT_DEPTH = 24
 #: Windows' records are compacted when their table has grown by this factor since the last time.
 COMPACT_GROWTH = 1.25
+#: Records are rebuilt for at most this many windows at once (with their ancestors, about
+#: CHECKPOINT_DEPTH / 2 times as many): the memory a query of a large field needs beyond its answers.
+REBUILT_AT_ONCE = 1 << 17
 
 
 def _cross(a, b):
@@ -247,27 +250,27 @@ class _Windows:
             a[held] = rec.data[k][row[held]]
         missing = np.flatnonzero(~held)
         if missing.size:
-            built, order = self._rebuild(np.unique(ids[missing]))
-            at = np.searchsorted(order, ids[missing])
-            for k, a in out.items():
-                a[missing] = built[k][at]
+            wanted = np.unique(ids[missing])
+            for start in range(0, wanted.size, REBUILT_AT_ONCE):
+                part = wanted[start : start + REBUILT_AT_ONCE]
+                built, order = self._rebuild(part)
+                mine = missing[(ids[missing] >= part[0]) & (ids[missing] <= part[-1])]
+                at = np.searchsorted(order, ids[mine])
+                for k, a in out.items():
+                    a[mine] = built[k][at]
         return _Records(**out, parent=tree.parent[ids].astype(np.int64))
 
     def _rebuild(self, ids: np.ndarray) -> tuple[dict, np.ndarray]:
-        """Records of windows ``ids`` (sorted, none held), rebuilt down from their nearest held ancestors
-        in waves (a window once its parent is done); returns them and the ids they are for, sorted."""
+        """Records of windows ``ids`` (sorted, none held), rebuilt down from their nearest held ancestors;
+        returns them and the ids they are for (sorted: ``ids`` and the ancestors on the way)."""
         rec, tree = self.rec, self.tree
         levels, todo = [], ids
-        while todo.size:  # every missing window on the way up
+        while todo.size:  # every missing window on the way up, a generation a level
             levels.append(todo)
             up = np.unique(tree.parent[todo])
             row = np.minimum(np.searchsorted(rec.id, up), rec.size - 1)
             todo = up[rec.id[row] != up]
-        need = np.unique(np.concatenate(levels))
-        parent = tree.parent[need].astype(np.int64)
-        pos = np.minimum(np.searchsorted(need, parent), need.size - 1)
-        inner = need[pos] == parent  # the parent is rebuilt too
-        prow = np.searchsorted(rec.id, parent)
+        need = np.unique(np.concatenate(levels)) if len(levels) > 1 else ids
         built = {k: np.empty(need.size, rec.data[k].dtype) for k in ("he", "u0", "u1", "img", "rot", "root")}
         built["he"][:] = tree.he[need]
         swapped = np.zeros(need.size, bool)
@@ -276,14 +279,18 @@ class _Windows:
             batch = np.searchsorted(start, need, side="right") - 1
             swapped = (batch >= 0) & (need < end[np.maximum(batch, 0)])
         done = np.zeros(need.size, bool)
-        while not done.all():
-            now = np.flatnonzero(~done & (~inner | done[pos]))
-            p_in = inner[now]
+        for level in reversed(levels):  # a window's parent is held or one level up, so done already
+            now = np.searchsorted(need, level)
+            now = now[~done[now]]
+            parent = tree.parent[need[now]]
+            pos = np.minimum(np.searchsorted(need, parent), need.size - 1)
+            p_in = need[pos] == parent
+            prow = np.searchsorted(rec.id, parent[~p_in])
             src = {}
             for k in ("he", "u0", "u1", "img", "rot", "root"):
                 col = np.empty(now.size, rec.data[k].dtype)
-                col[p_in] = built[k][pos[now[p_in]]]
-                col[~p_in] = rec.data[k][prow[now[~p_in]]]
+                col[p_in] = built[k][pos[p_in]]
+                col[~p_in] = rec.data[k][prow]
                 src[k] = col
             u0, u1, img, rot = _child(
                 self.mesh,

@@ -123,6 +123,7 @@ def compact(monkeypatch):
     monkeypatch.setattr(exact, "WINDOWS_KEPT_WHOLE", 0)
     monkeypatch.setattr(exact, "WINDOWS_RESERVED", 64)
     monkeypatch.setattr(exact, "CHECKPOINT_DEPTH", 5)
+    monkeypatch.setattr(exact, "REBUILT_AT_ONCE", 50)
 
 
 @pytest.mark.parametrize("name", list(CASES))
