@@ -199,6 +199,7 @@ class _Windows:
         self.tree = _Columns(tree, capacity)
         self.rec = _Columns(record, capacity)
         self._compacted = capacity
+        self._clean = 0  # rows before this one are all kept
         self._swapped: list[tuple[int, int]] = []  # id ranges [start, end) made with swapped products
 
     @property
@@ -225,24 +226,31 @@ class _Windows:
 
     def compact(self, queued: np.ndarray, now: bool = False) -> np.ndarray:
         """Drop the records of windows neither kept nor ``queued`` (rows), when the table has grown enough
-        since the last time to be worth it (or ``now``); return the queued windows' new rows."""
+        since the last time to be worth it (or ``now``); return the queued windows' new rows. Rows before
+        the first one that was not kept last time are all kept: only the rest are moved."""
         rec = self.rec
         if self.tree.size <= WINDOWS_KEPT_WHOLE or (rec.size < COMPACT_GROWTH * self._compacted and not now):
             return queued
-        keep = rec.kept.copy()
-        keep[queued] = True
-        rows = np.flatnonzero(keep)
-        for k, a in rec.data.items():
-            rec.data[k] = a[rows]  # new arrays just as large: the old (and their resident pages) go
-        rec.size = rows.size
-        self._compacted = max(rows.size, WINDOWS_RESERVED)
-        new = np.cumsum(keep) - 1
-        return new[queued]
+        lo = self._clean
+        keep = rec.kept[lo:].copy()
+        later = queued >= lo
+        keep[queued[later] - lo] = True
+        rows = lo + np.flatnonzero(keep)
+        n = lo + rows.size
+        for a in rec.data.values():
+            a[lo:n] = a[rows]  # in place: a table's resident pages are never more than its largest size
+        rec.size = n
+        moved = queued.copy()
+        moved[later] = lo + (np.cumsum(keep) - 1)[queued[later] - lo]
+        queued_only = np.flatnonzero(~rec.kept[lo:n])
+        self._clean = lo + (queued_only[0] if queued_only.size else n - lo)
+        self._compacted = max(n, WINDOWS_RESERVED)
+        return moved
 
     def records(self, ids: np.ndarray) -> _Records:
         """The whole records of windows ``ids`` (any shape of ints >= 0), rebuilding those not held."""
-        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
         rec, tree = self.rec, self.tree
+        ids = np.asarray(ids).reshape(-1).astype(rec.id.dtype, copy=False)  # searchsorted would cast rec.id
         row = np.minimum(np.searchsorted(rec.id, ids), max(rec.size - 1, 0))
         held = rec.id[row] == ids if rec.size else np.zeros(ids.size, bool)
         out = {k: np.empty(ids.size, rec.data[k].dtype) for k in ("he", "u0", "u1", "img", "rot", "root")}
