@@ -71,6 +71,7 @@ def _cross(a, b):
 #: (AVX-512 rounds the two orders differently). A child's image came from ``rotation * image[s]``: which
 #: order it got is part of its bits, so a rebuilt child must get the same one (:func:`_rotated`).
 _ELIDE_BYTES = 256 * 1024
+_INT32_MAX = int(np.iinfo(np.int32).max)
 
 
 def _products_swap() -> bool:
@@ -183,7 +184,9 @@ class _Windows:
     :data:`WINDOWS_KEPT_WHOLE` windows, for direct segments and their children (made by other rules), for
     windows that gave a vertex its distance, and for every :data:`CHECKPOINT_DEPTH`-th generation. Any
     other record is rebuilt from its nearest kept ancestor by the very computation that made it
-    (:func:`_child`), on the same float64 values, so it comes back bit for bit.
+    (:func:`_child`), on the same float64 values, so it comes back bit for bit. The price is paid by
+    queries of a large field: a window they read that is not held costs about ``CHECKPOINT_DEPTH / 2``
+    such computations (those of its ancestors on the way are shared).
 
     ``rec`` rows are in increasing id order; the propagation addresses windows by row (``rows``), the
     field's answers by id.
@@ -214,12 +217,14 @@ class _Windows:
         he = np.asarray(he)
         if swapped:
             self._swapped.append((self.tree.size, self.tree.size + he.size))
-        if self.tree.size + he.size >= np.iinfo(self.tree.data["parent"].dtype).max:
+        if self.tree.size + he.size >= _INT32_MAX and self.tree.data["parent"].dtype == np.int32:
             for table, k in ((self.tree, "parent"), (self.rec, "id"), (self.rec, "root")):
                 table.data[k] = table.data[k].astype(np.int64)
         ids = self.tree.append(he=he, parent=parent)
-        phase = np.asarray(phase, np.uint8)
-        kept = kept | (ids < WINDOWS_KEPT_WHOLE) | (phase == 0)
+        if self.tree.size <= WINDOWS_KEPT_WHOLE:
+            kept = True
+        else:
+            kept = kept | (ids < WINDOWS_KEPT_WHOLE) | (np.asarray(phase) == 0)
         return self.rec.append(
             id=ids, he=he, u0=u0, u1=u1, img=img, rot=rot, root=root, phase=phase, kept=kept
         )
@@ -239,18 +244,31 @@ class _Windows:
         n = lo + rows.size
         for a in rec.data.values():
             a[lo:n] = a[rows]  # in place: a table's resident pages are never more than its largest size
-        rec.size = n
+        rec.size = int(n)
         moved = queued.copy()
         moved[later] = lo + (np.cumsum(keep) - 1)[queued[later] - lo]
         queued_only = np.flatnonzero(~rec.kept[lo:n])
-        self._clean = lo + (queued_only[0] if queued_only.size else n - lo)
+        self._clean = int(lo + (queued_only[0] if queued_only.size else n - lo))
         self._compacted = max(n, WINDOWS_RESERVED)
         return moved
+
+    def held(self, name: str, ids: np.ndarray) -> np.ndarray:
+        """Column ``name`` of windows ``ids`` whose records are held (windows that gave a vertex its
+        distance are)."""
+        rec = self.rec
+        if rec.size == self.tree.size:
+            return rec.data[name][ids]
+        return rec.data[name][np.searchsorted(rec.id, np.asarray(ids).astype(rec.id.dtype, copy=False))]
 
     def records(self, ids: np.ndarray) -> _Records:
         """The whole records of windows ``ids`` (any shape of ints >= 0), rebuilding those not held."""
         rec, tree = self.rec, self.tree
         ids = np.asarray(ids).reshape(-1).astype(rec.id.dtype, copy=False)  # searchsorted would cast rec.id
+        if rec.size == tree.size:  # every record held: a window's row is its id
+            return _Records(
+                **{k: rec.data[k][ids] for k in ("he", "u0", "u1", "img", "rot", "root")},
+                parent=tree.parent[ids].astype(np.int64),
+            )
         row = np.minimum(np.searchsorted(rec.id, ids), max(rec.size - 1, 0))
         held = rec.id[row] == ids if rec.size else np.zeros(ids.size, bool)
         out = {k: np.empty(ids.size, rec.data[k].dtype) for k in ("he", "u0", "u1", "img", "rot", "root")}
@@ -387,6 +405,13 @@ class GeodesicField:
         Points that later queries will ask about; lets propagation stop early.
     max_distance : float, optional
         Do not propagate beyond this distance.
+
+    Notes
+    -----
+    A whole-mesh field on n faces makes on the order of n^1.5 windows (256 a face at a million faces).
+    Beyond the first :data:`WINDOWS_KEPT_WHOLE`, each costs about 10 bytes (a million-face torus: 4 GiB
+    at the peak instead of 19): most windows' records are rebuilt, bit for bit, when a query reads them,
+    which makes queries of such a field several times slower than of a small one.
     """
 
     def __init__(
@@ -645,7 +670,7 @@ class GeodesicField:
         Pf = mesh.face_points.ravel()
         to_edge, length, apex = _edge_frames(mesh)
         parent, corner_in = self.vertex_parent[verts], self._vertex_corner[verts]
-        back = W.records(parent).img - Pf[corner_in]  # towards where the geodesic came from
+        back = W.held("img", parent) - Pf[corner_in]  # towards where the geodesic came from
         theta = mesh.angle_sums[verts]
         boundary = mesh.is_boundary_vertex[verts]
         a_back = mesh.halfedge_angle[corner_in] + np.angle(back * to_edge[corner_in])
@@ -678,7 +703,7 @@ class GeodesicField:
         if h.size == 0:
             return
         sigma = self.vertex_distance[u]
-        label = self.chains.label[W.records(self.vertex_parent[u]).root]
+        label = self.chains.label[W.held("root", self.vertex_parent[u])]
         chain = self.chains.append(label=label, sigma=sigma, ps=u, birth=self._birth[u], corner=h)
         direct = W.add(he=h, u0=0.0, u1=1.0, img=Pf[h], rot=1.0, root=chain, parent=-1, phase=0)
         nxt, prv = mesh.halfedge_next[h], mesh.halfedge_prev[h]
