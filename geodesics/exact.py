@@ -49,10 +49,12 @@ MIN_WIDTH = 1e-12
 BAND = 3.0
 #: At most this many windows' room is reserved before propagating (more grows as needed).
 WINDOWS_RESERVED = 1 << 20
-#: The first this many windows of a field keep their whole record (a field this small answers queries
-#: straight from it); beyond them, only every :data:`CHECKPOINT_DEPTH`-th generation does, and the others
-#: are rebuilt from their nearest kept ancestor when a query needs them (see :class:`_Windows`).
-WINDOWS_KEPT_WHOLE = 1 << 21
+#: Every window keeps its whole record until a field has made this many (a field this small answers
+#: queries straight from them: a whole-mesh field on an 80k-face torus makes 5.8M); past them, only
+#: every :data:`CHECKPOINT_DEPTH`-th generation does, and the others are rebuilt from their nearest kept
+#: ancestor when a query needs them (see :class:`_Windows`). The pages of the records held at the switch
+#: (62 bytes a window) stay resident: fewer than a million-face field holds at the end.
+COMPACT_AFTER = 1 << 23
 #: Generations between kept records: the records a large field holds, and the steps a query replays.
 CHECKPOINT_DEPTH = 24
 #: Windows' records are compacted when their table has grown by this factor since the last time.
@@ -172,6 +174,22 @@ class _Records:
     parent: np.ndarray
 
 
+class _HeldRecords:
+    """:class:`_Records` of a field that holds every record: each column is read when first asked for
+    (a query reads a few of them over millions of windows)."""
+
+    def __init__(self, windows: _Windows, ids: np.ndarray):
+        self._windows, self._ids = windows, ids
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        if name.startswith("_") or name not in _Records.__dataclass_fields__:
+            raise AttributeError(name)
+        table = self._windows.tree if name == "parent" else self._windows.rec
+        value = table.data[name][self._ids]
+        setattr(self, name, value)
+        return value
+
+
 class _Windows:
     """Every window a field creates, stored in bounded memory.
 
@@ -180,9 +198,9 @@ class _Windows:
     most of the rest are the best window somewhere in their face or lie on the way back from one (a path
     walks back through its parents). So none is released; instead each window keeps only its halfedge
     and its parent's id (8 bytes), and its whole record (interval, pseudosource image, rotation, chain:
-    62 bytes) is held while it is queued, and kept for good only for the first
-    :data:`WINDOWS_KEPT_WHOLE` windows, for direct segments and their children (made by other rules), for
-    windows that gave a vertex its distance, and for every :data:`CHECKPOINT_DEPTH`-th generation. Any
+    62 bytes) is held while it is queued, and, once the field has made :data:`COMPACT_AFTER` windows,
+    kept for good only for direct segments and their children (made by other rules), for windows that
+    gave a vertex its distance, and for every :data:`CHECKPOINT_DEPTH`-th generation. Any
     other record is rebuilt from its nearest kept ancestor by the very computation that made it
     (:func:`_child`), on the same float64 values, so it comes back bit for bit. The price is paid by
     queries of a large field: a window they read that is not held costs about ``CHECKPOINT_DEPTH / 2``
@@ -221,10 +239,7 @@ class _Windows:
             for table, k in ((self.tree, "parent"), (self.rec, "id"), (self.rec, "root")):
                 table.data[k] = table.data[k].astype(np.int64)
         ids = self.tree.append(he=he, parent=parent)
-        if self.tree.size <= WINDOWS_KEPT_WHOLE:
-            kept = True
-        else:
-            kept = kept | (ids < WINDOWS_KEPT_WHOLE) | (np.asarray(phase) == 0)
+        kept = kept | (np.asarray(phase) == 0)
         return self.rec.append(
             id=ids, he=he, u0=u0, u1=u1, img=img, rot=rot, root=root, phase=phase, kept=kept
         )
@@ -234,7 +249,7 @@ class _Windows:
         since the last time to be worth it (or ``now``); return the queued windows' new rows. Rows before
         the first one that was not kept last time are all kept: only the rest are moved."""
         rec = self.rec
-        if self.tree.size <= WINDOWS_KEPT_WHOLE or (rec.size < COMPACT_GROWTH * self._compacted and not now):
+        if self.tree.size <= COMPACT_AFTER or (rec.size < COMPACT_GROWTH * self._compacted and not now):
             return queued
         lo = self._clean
         keep = rec.kept[lo:].copy()
@@ -260,15 +275,13 @@ class _Windows:
             return rec.data[name][ids]
         return rec.data[name][np.searchsorted(rec.id, np.asarray(ids).astype(rec.id.dtype, copy=False))]
 
-    def records(self, ids: np.ndarray) -> _Records:
+    def records(self, ids: np.ndarray) -> _Records | _HeldRecords:
         """The whole records of windows ``ids`` (any shape of ints >= 0), rebuilding those not held."""
         rec, tree = self.rec, self.tree
-        ids = np.asarray(ids).reshape(-1).astype(rec.id.dtype, copy=False)  # searchsorted would cast rec.id
+        ids = np.asarray(ids).reshape(-1)
         if rec.size == tree.size:  # every record held: a window's row is its id
-            return _Records(
-                **{k: rec.data[k][ids] for k in ("he", "u0", "u1", "img", "rot", "root")},
-                parent=tree.parent[ids].astype(np.int64),
-            )
+            return _HeldRecords(self, ids)
+        ids = ids.astype(rec.id.dtype, copy=False)  # searchsorted would cast rec.id
         row = np.minimum(np.searchsorted(rec.id, ids), max(rec.size - 1, 0))
         held = rec.id[row] == ids if rec.size else np.zeros(ids.size, bool)
         out = {k: np.empty(ids.size, rec.data[k].dtype) for k in ("he", "u0", "u1", "img", "rot", "root")}
@@ -409,9 +422,9 @@ class GeodesicField:
     Notes
     -----
     A whole-mesh field on n faces makes on the order of n^1.5 windows (256 a face at a million faces).
-    Beyond the first :data:`WINDOWS_KEPT_WHOLE`, each costs about 10 bytes (a million-face torus: 4 GiB
-    at the peak instead of 19): most windows' records are rebuilt, bit for bit, when a query reads them,
-    which makes queries of such a field several times slower than of a small one.
+    Past :data:`COMPACT_AFTER` windows, each costs about 10 bytes (a million-face torus: under 4 GB at
+    the peak instead of 19): most windows' records are rebuilt, bit for bit, when a query reads them,
+    which makes queries of such a field several times slower than of a smaller one.
     """
 
     def __init__(

@@ -120,7 +120,7 @@ def test_answers_are_bit_identical_to_before():
 def compact(monkeypatch):
     """Fields as a large one is stored, at any size: records kept only every few generations, and the
     queue's records compacted as soon as their table doubles."""
-    monkeypatch.setattr(exact, "WINDOWS_KEPT_WHOLE", 0)
+    monkeypatch.setattr(exact, "COMPACT_AFTER", 0)
     monkeypatch.setattr(exact, "WINDOWS_RESERVED", 64)
     monkeypatch.setattr(exact, "CHECKPOINT_DEPTH", 5)
     monkeypatch.setattr(exact, "REBUILT_AT_ONCE", 50)
@@ -152,7 +152,7 @@ def test_every_window_a_query_or_path_needs_is_still_there(monkeypatch):
         (scan_like_sphere(1500, seed=7), SurfacePoints(np.array([0, 900]), np.full((2, 3), 1 / 3))),
     ]
     whole = [answers(*case, paths=40) for case in meshes]
-    monkeypatch.setattr(exact, "WINDOWS_KEPT_WHOLE", 0)
+    monkeypatch.setattr(exact, "COMPACT_AFTER", 0)
     monkeypatch.setattr(exact, "WINDOWS_RESERVED", 1000)
     for case, expected in zip(meshes, whole, strict=True):
         field = GeodesicField(*case)
