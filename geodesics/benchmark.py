@@ -6,10 +6,15 @@ not installed (potpourri3d, pygeodesic) are reported as missing rather than fail
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
 import time
 import tracemalloc
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -91,6 +96,8 @@ def run(repeat: int = 5, rays: int = 2000, progress: Callable[[str], None] | Non
     rows += _vector_heat_rows(mesh, origin, repeat)
     say("1M faces")
     rows += _million_faces_rows(rng, rays, repeat)
+    say("whole-mesh exact fields")
+    rows += _whole_field_rows()
     return rows
 
 
@@ -215,6 +222,75 @@ def _million_faces_rows(rng, rays: int, repeat: int) -> list[Row]:
             note=f"peak memory of mesh and tracing: {peak / 2**30:.2f} GiB",
         ),
     ]
+
+
+#: Tori (n_major, n_minor) of about 80k, 320k and 1M faces, shaped as the 1M-face torus above.
+WHOLE_FIELD_TORI = ((284, 142), (566, 283), (1000, 500))
+
+
+def _whole_field_rows() -> list[Row]:
+    """A whole-mesh exact field (no targets, no limit) from one vertex of each of
+    :data:`WHOLE_FIELD_TORI`: one run each, in a fresh process so that its peak resident memory is its
+    own; beside pygeodesic's exact distances at every vertex on the first."""
+    rows = []
+    for i, (n_major, n_minor) in enumerate(WHOLE_FIELD_TORI):
+        ours = _in_fresh_process("ours", n_major, n_minor)
+        peer = _in_fresh_process("pygeodesic", n_major, n_minor) if i == 0 else None
+        note = (
+            f"peak resident {ours['peak'] / 2**30:.2f} GiB (mesh alone {ours['mesh'] / 2**30:.2f}); "
+            f"{ours['windows'] / ours['faces']:.0f} windows a face, "
+            f"{ours['records'] / ours['windows']:.0%} of them with a whole record"
+        )
+        if peer is not None and "error" not in peer:
+            note += f"; pygeodesic: peak resident {peer['peak'] / 2**30:.2f} GiB, distances at vertices only"
+        rows.append(
+            Row(
+                f"whole-mesh exact field, {ours['faces']:,} faces",
+                ours["seconds"],
+                None if peer is None or "error" in peer else peer["seconds"],
+                "pygeodesic MMP (Kirsanov)" if peer is not None else "",
+                f"one run; {note}",
+            )
+        )
+    return rows
+
+
+def _in_fresh_process(who: str, n_major: int, n_minor: int) -> dict:
+    """Run :func:`_whole_field` in a new Python process and return what it reports."""
+    root = str(Path(__file__).resolve().parents[1])
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([root, os.environ.get("PYTHONPATH", "")]))
+    code = f"from geodesics.benchmark import _whole_field; _whole_field({who!r}, {n_major}, {n_minor})"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    return json.loads(done.stdout.splitlines()[-1])
+
+
+def _resident(field: str) -> int:
+    """This process's resident memory (``VmRSS``) or its peak (``VmHWM``) in bytes, from /proc."""
+    with open("/proc/self/status") as status:
+        for line in status:
+            if line.startswith(field + ":"):
+                return int(line.split()[1]) * 1024
+    return 0
+
+
+def _whole_field(who: str, n_major: int, n_minor: int) -> None:
+    """Child process of :func:`_in_fresh_process`: build the torus, compute one whole-mesh field (ours,
+    or pygeodesic's distances at every vertex) and print seconds and memory as a JSON line."""
+    mesh = torus(n_major=n_major, n_minor=n_minor)
+    out = {"faces": mesh.n_faces, "mesh": _resident("VmRSS")}
+    start = time.perf_counter()
+    if who == "ours":
+        field = GeodesicField(mesh, SurfacePoints.from_vertices(mesh, [0]))
+        out.update(windows=int(field.W.size), records=int(field.W.rec.size))
+    else:
+        try:
+            import pygeodesic.geodesic as pygeodesic
+        except ImportError:
+            print(json.dumps({"error": "not installed"}))
+            return
+        pygeodesic.PyGeodesicAlgorithmExact(mesh.vertices, mesh.faces).geodesicDistances(np.array([0]), None)
+    out.update(seconds=time.perf_counter() - start, peak=_resident("VmHWM"))
+    print(json.dumps(out))
 
 
 def run_contacts(repeat: int = 5, progress: Callable[[str], None] | None = None) -> list[Row]:

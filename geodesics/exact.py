@@ -22,6 +22,9 @@ only when a real, strictly shorter path exists everywhere that window could reac
 
 A query point's distance is the minimum over the windows entering its face (and the direct segments
 from pseudosources in that face); the path is recovered by walking back through parent windows.
+
+A large field keeps every window's halfedge and parent but the rest of its record only every few
+generations; a query rebuilds the others from their nearest kept ancestor, bit for bit (``_Windows``).
 """
 
 from __future__ import annotations
@@ -44,12 +47,58 @@ RAY_SLACK = 1e-9
 MIN_WIDTH = 1e-12
 #: Processing band, in mean edge lengths.
 BAND = 3.0
-#: At most this many windows' room is reserved before propagating (64 MB; more grows as needed).
+#: At most this many windows' room is reserved before propagating (more grows as needed).
 WINDOWS_RESERVED = 1 << 20
+#: Every window keeps its whole record until a field has made this many (a field this small answers
+#: queries straight from them: a whole-mesh field on an 80k-face torus makes 5.8M); past them, only
+#: every :data:`CHECKPOINT_DEPTH`-th generation does, and the others are rebuilt from their nearest kept
+#: ancestor when a query needs them (see :class:`_Windows`). The pages of the records held at the switch
+#: (62 bytes a window) stay resident: fewer than a million-face field holds at the end.
+COMPACT_AFTER = 1 << 23
+#: Generations between kept records: the records a large field holds, and the steps a query replays.
+CHECKPOINT_DEPTH = 24
+#: Windows' records are compacted when their table has grown by this factor since the last time.
+COMPACT_GROWTH = 1.25
+#: Records are rebuilt for at most this many windows at once (with their ancestors, about
+#: CHECKPOINT_DEPTH / 2 times as many): the memory a query of a large field needs beyond its answers.
+REBUILT_AT_ONCE = 1 << 17
 
 
 def _cross(a, b):
     return (np.conj(a) * b).imag
+
+
+#: NumPy computes ``a * b`` as ``b * a``, in b's buffer, when b is a temporary array of at least this
+#: many bytes (it elides the temporary), and its complex product is not bitwise commutative everywhere
+#: (AVX-512 rounds the two orders differently). A child's image came from ``rotation * image[s]``: which
+#: order it got is part of its bits, so a rebuilt child must get the same one (:func:`_rotated`).
+_ELIDE_BYTES = 256 * 1024
+_INT32_MAX = int(np.iinfo(np.int32).max)
+
+
+def _products_swap() -> bool:
+    """Whether ``a * temporary`` comes out as ``temporary * a`` here (False where both orders agree)."""
+    n = _ELIDE_BYTES // 16
+    a = np.full(n, 0.8687067524553922 - 0.4953267388688054j)
+    b = np.full(n, 1.6025562025323026 + 0.7826137053557433j)
+    elided = a * (b + 0)
+    return bool(elided[0] == (b * a)[0] != (a * b)[0])
+
+
+_PRODUCTS_SWAP = _products_swap()
+
+
+def _swapped(n: int) -> bool:
+    """Whether ``rotation * image[s]`` over ``n`` children is computed as ``image[s] * rotation``."""
+    return _PRODUCTS_SWAP and 16 * n >= _ELIDE_BYTES
+
+
+def _rotated(rotation, image, swapped):
+    """``rotation * image`` in the order it was computed when the windows were made (``swapped``: (n,)
+    bool or one bool)."""
+    if np.ndim(swapped) == 0:
+        return np.multiply(image, rotation) if swapped else np.multiply(rotation, image)
+    return np.where(swapped, np.multiply(image, rotation), np.multiply(rotation, image))
 
 
 class _Columns:
@@ -85,14 +134,22 @@ class _Columns:
 
 
 #: A window's columns: a family of straight rays from a pseudosource through an interval of an edge.
-_WINDOW = {
-    "he": np.int64,  # halfedge the window lies on; its rays enter face(he)
+#: Every window has an id (its creation order) and ``_TREE``'s two columns; ``_RECORD``'s are held only
+#: while it is queued, or for good when it is kept (see :class:`_Windows`).
+_TREE = {
+    "he": np.int32,  # halfedge the window lies on; its rays enter face(he)
+    "parent": np.int32,  # id of the window it was propagated from; -1 for a direct segment (starts a chain)
+}
+_RECORD = {
+    "id": np.int32,
+    "he": np.int32,
     "u0": np.float64,  # interval along he, 0 at its tail, 1 at its head
     "u1": np.float64,
     "img": np.complex128,  # pseudosource image in face(he)'s frame
     "rot": np.complex128,  # direction in face(he) frame = rot * direction in the pseudosource frame
-    "root": np.int64,  # its chain: a row of the chains' table
-    "parent": np.int64,  # window it was propagated from; -1 for a direct segment, which starts a chain
+    "root": np.int32,  # its chain: a row of the chains' table
+    "phase": np.uint8,  # generations since its chain's direct segment, modulo CHECKPOINT_DEPTH
+    "kept": np.bool_,  # the record stays when the window leaves the queue
 }
 #: What every window of a chain (propagated from one direct segment) shares.
 _CHAIN = {
@@ -102,6 +159,192 @@ _CHAIN = {
     "birth": np.int64,  # the pseudosource's birth count when the chain started
     "corner": np.int64,  # pseudosource frame: face(corner)'s, at vertex tail(corner); -1: source face
 }
+
+
+@dataclass(frozen=True)
+class _Records:
+    """Windows' whole records, one row per window asked for."""
+
+    he: np.ndarray
+    u0: np.ndarray
+    u1: np.ndarray
+    img: np.ndarray
+    rot: np.ndarray
+    root: np.ndarray
+    parent: np.ndarray
+
+
+class _HeldRecords:
+    """:class:`_Records` of a field that holds every record: each column is read when first asked for
+    (a query reads a few of them over millions of windows)."""
+
+    def __init__(self, windows: _Windows, ids: np.ndarray):
+        self._windows, self._ids = windows, ids
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        if name.startswith("_") or name not in _Records.__dataclass_fields__:
+            raise AttributeError(name)
+        table = self._windows.tree if name == "parent" else self._windows.rec
+        value = table.data[name][self._ids]
+        setattr(self, name, value)
+        return value
+
+
+class _Windows:
+    """Every window a field creates, stored in bounded memory.
+
+    A whole-mesh field creates a number of windows that grows like n^1.5 (about 70 a face at 80k faces,
+    256 at 1M), and nearly all of them are needed later: 98% survive rules 1-3 and have children, and
+    most of the rest are the best window somewhere in their face or lie on the way back from one (a path
+    walks back through its parents). So none is released; instead each window keeps only its halfedge
+    and its parent's id (8 bytes), and its whole record (interval, pseudosource image, rotation, chain:
+    62 bytes) is held while it is queued, and, once the field has made :data:`COMPACT_AFTER` windows,
+    kept for good only for direct segments and their children (made by other rules), for windows that
+    gave a vertex its distance, and for every :data:`CHECKPOINT_DEPTH`-th generation. Any
+    other record is rebuilt from its nearest kept ancestor by the very computation that made it
+    (:func:`_child`), on the same float64 values, so it comes back bit for bit. The price is paid by
+    queries of a large field: a window they read that is not held costs about ``CHECKPOINT_DEPTH / 2``
+    such computations (those of its ancestors on the way are shared).
+
+    ``rec`` rows are in increasing id order; the propagation addresses windows by row (``rows``), the
+    field's answers by id.
+    """
+
+    def __init__(self, mesh: TriMesh, capacity: int):
+        self.mesh = mesh
+        if 3 * mesh.n_faces >= 2**31:
+            tree = {"he": np.int64, "parent": np.int32}
+            record = dict(_RECORD, he=np.int64)
+        else:
+            tree, record = _TREE, _RECORD
+        self.tree = _Columns(tree, capacity)
+        self.rec = _Columns(record, capacity)
+        self._compacted = capacity
+        self._clean = 0  # rows before this one are all kept
+        self._swapped: list[tuple[int, int]] = []  # id ranges [start, end) made with swapped products
+
+    @property
+    def size(self) -> int:
+        """How many windows were created."""
+        return self.tree.size
+
+    def add(self, he, u0, u1, img, rot, root, parent, phase, kept=False, swapped=False) -> np.ndarray:
+        """Store new windows (``parent`` by id; ``phase``, their generation modulo
+        :data:`CHECKPOINT_DEPTH`) and return their rows; ``kept`` keeps their records whatever the phase;
+        ``swapped``: their images were computed as ``image * rotation`` (see :func:`_rotated`)."""
+        he = np.asarray(he)
+        if swapped:
+            self._swapped.append((self.tree.size, self.tree.size + he.size))
+        if self.tree.size + he.size >= _INT32_MAX and self.tree.data["parent"].dtype == np.int32:
+            for table, k in ((self.tree, "parent"), (self.rec, "id"), (self.rec, "root")):
+                table.data[k] = table.data[k].astype(np.int64)
+        ids = self.tree.append(he=he, parent=parent)
+        kept = kept | (np.asarray(phase) == 0)
+        return self.rec.append(
+            id=ids, he=he, u0=u0, u1=u1, img=img, rot=rot, root=root, phase=phase, kept=kept
+        )
+
+    def compact(self, queued: np.ndarray, now: bool = False) -> np.ndarray:
+        """Drop the records of windows neither kept nor ``queued`` (rows), when the table has grown enough
+        since the last time to be worth it (or ``now``); return the queued windows' new rows. Rows before
+        the first one that was not kept last time are all kept: only the rest are moved."""
+        rec = self.rec
+        if self.tree.size <= COMPACT_AFTER or (rec.size < COMPACT_GROWTH * self._compacted and not now):
+            return queued
+        lo = self._clean
+        keep = rec.kept[lo:].copy()
+        later = queued >= lo
+        keep[queued[later] - lo] = True
+        rows = lo + np.flatnonzero(keep)
+        n = lo + rows.size
+        for a in rec.data.values():
+            a[lo:n] = a[rows]  # in place: a table's resident pages are never more than its largest size
+        rec.size = int(n)
+        moved = queued.copy()
+        moved[later] = lo + (np.cumsum(keep) - 1)[queued[later] - lo]
+        queued_only = np.flatnonzero(~rec.kept[lo:n])
+        self._clean = int(lo + (queued_only[0] if queued_only.size else n - lo))
+        self._compacted = max(n, WINDOWS_RESERVED)
+        return moved
+
+    def held(self, name: str, ids: np.ndarray) -> np.ndarray:
+        """Column ``name`` of windows ``ids`` whose records are held (windows that gave a vertex its
+        distance are)."""
+        rec = self.rec
+        if rec.size == self.tree.size:
+            return rec.data[name][ids]
+        return rec.data[name][np.searchsorted(rec.id, np.asarray(ids).astype(rec.id.dtype, copy=False))]
+
+    def records(self, ids: np.ndarray) -> _Records | _HeldRecords:
+        """The whole records of windows ``ids`` (any shape of ints >= 0), rebuilding those not held."""
+        rec, tree = self.rec, self.tree
+        ids = np.asarray(ids).reshape(-1)
+        if rec.size == tree.size:  # every record held: a window's row is its id
+            return _HeldRecords(self, ids)
+        ids = ids.astype(rec.id.dtype, copy=False)  # searchsorted would cast rec.id
+        row = np.minimum(np.searchsorted(rec.id, ids), max(rec.size - 1, 0))
+        held = rec.id[row] == ids if rec.size else np.zeros(ids.size, bool)
+        out = {k: np.empty(ids.size, rec.data[k].dtype) for k in ("he", "u0", "u1", "img", "rot", "root")}
+        for k, a in out.items():
+            a[held] = rec.data[k][row[held]]
+        missing = np.flatnonzero(~held)
+        if missing.size:
+            wanted = np.unique(ids[missing])
+            for start in range(0, wanted.size, REBUILT_AT_ONCE):
+                part = wanted[start : start + REBUILT_AT_ONCE]
+                built, order = self._rebuild(part)
+                mine = missing[(ids[missing] >= part[0]) & (ids[missing] <= part[-1])]
+                at = np.searchsorted(order, ids[mine])
+                for k, a in out.items():
+                    a[mine] = built[k][at]
+        return _Records(**out, parent=tree.parent[ids].astype(np.int64))
+
+    def _rebuild(self, ids: np.ndarray) -> tuple[dict, np.ndarray]:
+        """Records of windows ``ids`` (sorted, none held), rebuilt down from their nearest held ancestors;
+        returns them and the ids they are for (sorted: ``ids`` and the ancestors on the way)."""
+        rec, tree = self.rec, self.tree
+        levels, todo = [], ids
+        while todo.size:  # every missing window on the way up, a generation a level
+            levels.append(todo)
+            up = np.unique(tree.parent[todo])
+            row = np.minimum(np.searchsorted(rec.id, up), rec.size - 1)
+            todo = up[rec.id[row] != up]
+        need = np.unique(np.concatenate(levels)) if len(levels) > 1 else ids
+        built = {k: np.empty(need.size, rec.data[k].dtype) for k in ("he", "u0", "u1", "img", "rot", "root")}
+        built["he"][:] = tree.he[need]
+        swapped = np.zeros(need.size, bool)
+        if self._swapped:
+            start, end = np.array(self._swapped).T
+            batch = np.searchsorted(start, need, side="right") - 1
+            swapped = (batch >= 0) & (need < end[np.maximum(batch, 0)])
+        done = np.zeros(need.size, bool)
+        for level in reversed(levels):  # a window's parent is held or one level up, so done already
+            now = np.searchsorted(need, level)
+            now = now[~done[now]]
+            parent = tree.parent[need[now]]
+            pos = np.minimum(np.searchsorted(need, parent), need.size - 1)
+            p_in = need[pos] == parent
+            prow = np.searchsorted(rec.id, parent[~p_in])
+            src = {}
+            for k in ("he", "u0", "u1", "img", "rot", "root"):
+                col = np.empty(now.size, rec.data[k].dtype)
+                col[p_in] = built[k][pos[p_in]]
+                col[~p_in] = rec.data[k][prow]
+                src[k] = col
+            u0, u1, img, rot = _child(
+                self.mesh,
+                src["he"],
+                src["u0"],
+                src["u1"],
+                src["img"],
+                src["rot"],
+                built["he"][now],
+                swapped[now],
+            )
+            built["u0"][now], built["u1"][now], built["img"][now], built["rot"][now] = u0, u1, img, rot
+            built["root"][now] = src["root"]
+            done[now] = True
+        return built, need
 
 
 @dataclass(frozen=True, eq=False)
@@ -175,6 +418,13 @@ class GeodesicField:
         Points that later queries will ask about; lets propagation stop early.
     max_distance : float, optional
         Do not propagate beyond this distance.
+
+    Notes
+    -----
+    A whole-mesh field on n faces makes on the order of n^1.5 windows (256 a face at a million faces).
+    Past :data:`COMPACT_AFTER` windows, each costs about 10 bytes (a million-face torus: under 4 GB at
+    the peak instead of 19): most windows' records are rebuilt, bit for bit, when a query reads them,
+    which makes queries of such a field several times slower than of a smaller one.
     """
 
     def __init__(
@@ -202,7 +452,7 @@ class GeodesicField:
         n = mesh.n_vertices
         # Room for the windows a whole mesh usually needs (up to a few dozen per face), reserved up front:
         # memory is only touched as it fills, and the arrays are not copied each time they would double.
-        self.W = _Columns(_WINDOW, min(48 * mesh.n_faces, WINDOWS_RESERVED))
+        self.W = _Windows(mesh, min(48 * mesh.n_faces, WINDOWS_RESERVED))
         self.chains = _Columns(_CHAIN, 1024)
         self.vertex_distance = np.full(n, np.inf)
         self.vertex_parent = np.full(n, -1, np.int64)
@@ -234,7 +484,7 @@ class GeodesicField:
         label, face, pos, rot, corner = _root_faces(mesh, self.sources)
         chain = self.chains.append(label=label, sigma=0.0, ps=-1, birth=0, corner=corner)
         he = np.where(corner >= 0, corner, 3 * face)
-        direct = self.W.append(he=he, u0=0.0, u1=1.0, img=pos, rot=rot, root=chain, parent=-1)
+        direct = self.W.add(he=he, u0=0.0, u1=1.0, img=pos, rot=rot, root=chain, parent=-1, phase=0)
         # Vertices of root faces are reached by straight segments inside those faces.
         h = 3 * face[:, None] + np.arange(3)
         self._relax(h.ravel(), np.abs(Pf[h.ravel()] - np.repeat(pos, 3)), np.repeat(direct, 3))
@@ -254,7 +504,9 @@ class GeodesicField:
             img=mesh.halfedge_offset[hh] + mesh.halfedge_rotation[hh] * pos[row],
             rot=rot[row] * mesh.halfedge_rotation[hh],
             root=chain[row],
-            parent=direct[row],
+            parent=self.W.rec.id[direct[row]],
+            phase=1 % CHECKPOINT_DEPTH,
+            kept=True,  # made by another rule than their descendants: they cannot be rebuilt
         )
 
     # ------------------------------------------------------------------ propagation
@@ -274,15 +526,17 @@ class GeodesicField:
                 verts = self._ps[take]
                 self._ps, self._ps_birth = self._ps[~take], self._ps_birth[~take]
                 self._emit_pseudosources(verts)
+            self._pending = self.W.compact(self._pending)
             take = self._pending_key < cut
             batch = self._pending[take]
             self._pending, self._pending_key = self._pending[~take], self._pending_key[~take]
-            chain = self.W.root[batch]
+            chain = self.W.rec.root[batch]
             ps = self.chains.ps[chain]
             live = (ps < 0) | (self.chains.birth[chain] == self._birth[np.maximum(ps, 0)])
             batch = batch[live]
             if batch.size:
                 self._propagate_batch(batch)
+        self._pending = self.W.compact(self._pending, now=True)
 
     def _stop_bound(self, low: float) -> float:
         """An upper bound on every target's distance (inf until each target's face is reached).
@@ -309,18 +563,14 @@ class GeodesicField:
         The geometry is done in each entry edge's frame (:func:`_edge_frames`): the edge runs from 0 to
         L along the real axis, the face's third corner C is at ``Cl`` above it and the pseudosource's
         image ``Il`` below it (or on its line)."""
-        mesh, W = self.mesh, self.W
-        to_edge, length, apex = _edge_frames(mesh)
+        mesh, W = self.mesh, self.W.rec
         tail = mesh.halfedge_tail
         he = W.he[w]
         hn, hp = mesh.halfedge_next[he], mesh.halfedge_prev[he]
         root = W.root[w]
         I, sig, u0, u1 = W.img[w], self.chains.sigma[root], W.u0[w], W.u1[w]
-        L, Cl = length[he], apex[he]
-        Il = (I - mesh.face_points.ravel()[he]) * to_edge[he]
+        Il, L, Cl, uc = _entry_frame(mesh, he, I)
         alive = self._unbeaten(Il, Cl, L, sig, u0 * L, u1 * L, tail[he], tail[hn], tail[hp])
-        xI, yI = Il.real, Il.imag
-        uc = (xI - yI * (Cl.real - xI) / (Cl.imag - yI)) / L  # where the ray through C crosses the edge
         dc = sig + np.abs(Cl - Il)
 
         sees_c = alive & (uc >= u0 - RAY_SLACK) & (uc <= u1 + RAY_SLACK)
@@ -348,11 +598,8 @@ class GeodesicField:
         if s.size == 0:
             return
         on_right = np.arange(s.size) >= left.size
-        Ils, Cls, Ls, us, u0s, u1s = Il[s], Cl[s], L[s], uc[s], u0[s], u1[s]
-        P0, P1 = np.where(on_right, Ls, Cls), np.where(on_right, Cls, 0.0)
-        with np.errstate(divide="ignore", invalid="ignore"):  # where C bounds a child, its ray may miss
-            t_near = np.where(on_right & (us > u0s), 1.0, _hit(Ils, u0s * Ls, P0, P1))
-            t_far = np.where(~on_right & (us < u1s), 0.0, _hit(Ils, u1s * Ls, P0, P1))
+        Ils = Il[s]
+        P0, P1, t_near, t_far = _exits(Ils, Cl[s], L[s], uc[s], u0[s], u1[s], on_right)
         h_out = np.where(on_right, hn[s], hp[s])
         twin = mesh.twin[h_out]
         ok = (twin >= 0) & (t_near - t_far > MIN_WIDTH)
@@ -367,10 +614,12 @@ class GeodesicField:
             he=twin,
             u0=1 - t_near,
             u1=1 - t_far,
-            img=mesh.halfedge_offset[h_out] + rotation * I[s],
+            img=mesh.halfedge_offset[h_out] + _rotated(rotation, I[s], _swapped(s.size)),
             rot=W.rot[ws] * rotation,
             root=root[s],
-            parent=ws,
+            parent=W.id[ws],
+            phase=(W.phase[ws] + 1) % CHECKPOINT_DEPTH,
+            swapped=_swapped(s.size),
         )
 
     def _unbeaten(self, Il, Cl, L, sig, xa, xb, va, vb, vc) -> np.ndarray:
@@ -399,12 +648,13 @@ class GeodesicField:
     def _queue(self, key: np.ndarray, **cols) -> None:
         """Store new edge windows and queue them by ``key``, a lower bound on any distance their rays
         give (the pruning rules judge them when they leave the queue)."""
-        self._pending = np.concatenate([self._pending, self.W.append(**cols)])
+        self._pending = np.concatenate([self._pending, self.W.add(**cols)])
         self._pending_key = np.concatenate([self._pending_key, key])
 
     def _relax(self, corners: np.ndarray, dist: np.ndarray, parent: np.ndarray) -> None:
         """Lower the distances of the vertices at ``corners`` (halfedges of their ``parent`` windows' faces,
-        from the vertex) where a candidate is shorter; queue bending vertices as pseudosources."""
+        from the vertex; windows by row) where a candidate is shorter; queue bending vertices as
+        pseudosources. A window that gives a vertex its distance keeps its record."""
         if corners.size == 0:
             return
         vertices = self.mesh.halfedge_tail[corners]
@@ -415,7 +665,8 @@ class GeodesicField:
         if v.size == 0:
             return
         self.vertex_distance[v] = d
-        self.vertex_parent[v] = p
+        self.vertex_parent[v] = self.W.rec.id[p]
+        self.W.rec.kept[p] = True
         self._vertex_corner[v] = c
         self._birth[v] += 1
         bends = v[self._bends[v]]
@@ -432,7 +683,7 @@ class GeodesicField:
         Pf = mesh.face_points.ravel()
         to_edge, length, apex = _edge_frames(mesh)
         parent, corner_in = self.vertex_parent[verts], self._vertex_corner[verts]
-        back = W.img[parent] - Pf[corner_in]  # towards where the geodesic came from
+        back = W.held("img", parent) - Pf[corner_in]  # towards where the geodesic came from
         theta = mesh.angle_sums[verts]
         boundary = mesh.is_boundary_vertex[verts]
         a_back = mesh.halfedge_angle[corner_in] + np.angle(back * to_edge[corner_in])
@@ -465,9 +716,9 @@ class GeodesicField:
         if h.size == 0:
             return
         sigma = self.vertex_distance[u]
-        label = self.chains.label[W.root[self.vertex_parent[u]]]
+        label = self.chains.label[W.held("root", self.vertex_parent[u])]
         chain = self.chains.append(label=label, sigma=sigma, ps=u, birth=self._birth[u], corner=h)
-        direct = W.append(he=h, u0=0.0, u1=1.0, img=Pf[h], rot=1.0, root=chain, parent=-1)
+        direct = W.add(he=h, u0=0.0, u1=1.0, img=Pf[h], rot=1.0, root=chain, parent=-1, phase=0)
         nxt, prv = mesh.halfedge_next[h], mesh.halfedge_prev[h]
         self._relax(
             np.concatenate([nxt, prv]),
@@ -488,7 +739,9 @@ class GeodesicField:
             img=mesh.halfedge_offset[opp] + mesh.halfedge_rotation[opp] * Pf[h[ok]],
             rot=mesh.halfedge_rotation[opp],
             root=chain[ok],
-            parent=direct[ok],
+            parent=W.rec.id[direct[ok]],
+            phase=1 % CHECKPOINT_DEPTH,
+            kept=True,  # made by another rule than their descendants: they cannot be rebuilt
         )
 
     # ------------------------------------------------------------------ queries
@@ -498,8 +751,8 @@ class GeodesicField:
         windows of those faces are sorted: a query usually touches a small part of the mesh."""
         wanted = np.zeros((self.mesh.n_faces, 3), bool)  # per halfedge: each window reads its own
         wanted[faces] = True
-        order = np.flatnonzero(wanted.ravel()[self.W.he])
-        face = self.W.he[order] // 3
+        order = np.flatnonzero(wanted.ravel()[self.W.tree.he])
+        face = self.W.tree.he[order] // 3
         sort = np.argsort(face, kind="stable")
         order = order[sort]
         start = np.searchsorted(face[sort], np.arange(self.mesh.n_faces + 1))
@@ -510,18 +763,18 @@ class GeodesicField:
     def _best_windows(self, faces: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """For points z in the frames of ``faces``: the best window entering each face and its distance."""
         entry, w = self._windows_entering(faces)
-        W = self.W
+        W = self.W.records(w)
         p = z[entry]
-        I = W.img[w]
-        value = self.chains.sigma[W.root[w]] + np.abs(p - I)
-        he = W.he[w]
+        I = W.img
+        value = self.chains.sigma[W.root] + np.abs(p - I)
+        he = W.he
         Pf = self.mesh.face_points.ravel()
         A, B = Pf[he], Pf[self.mesh.halfedge_next[he]]
         d = p - I
         with np.errstate(divide="ignore", invalid="ignore"):
             u = _cross(d, I - A) / _cross(d, B - A)
-        through = (u >= W.u0[w] - RAY_SLACK) & (u <= W.u1[w] + RAY_SLACK)
-        value = np.where((W.parent[w] < 0) | through, value, np.inf)
+        through = (u >= W.u0 - RAY_SLACK) & (u <= W.u1 + RAY_SLACK)
+        value = np.where((W.parent < 0) | through, value, np.inf)
         best = np.full(faces.size, -1, np.int64)
         dist = np.full(faces.size, np.inf)
         if value.size:
@@ -534,7 +787,7 @@ class GeodesicField:
     def _locate(self, points: SurfacePoints):
         """For each point: its best window (-1 if unreached), distance, that window's face, and the
         point's position in that face's frame."""
-        mesh, W = self.mesh, self.W
+        mesh = self.mesh
         points.validate(mesh)
         k = len(points)
         v = points.vertex_ids(mesh)
@@ -556,7 +809,7 @@ class GeodesicField:
             better = d2 < dist[other]
             best[other[better]], dist[other[better]] = b2[better], d2[better]
         reached = best >= 0
-        face = np.where(reached, W.he[np.maximum(best, 0)] // 3, points.faces)
+        face = np.where(reached, self.W.tree.he[np.maximum(best, 0)] // 3, points.faces)
         here = z.copy()
         moved = reached & ~at & (face != points.faces)
         hm = e[moved]
@@ -566,7 +819,6 @@ class GeodesicField:
 
     def query(self, points: SurfacePoints) -> GeodesicQuery:
         """Distances, nearest sources and directions at the given points."""
-        W = self.W
         best, dist, face, here = self._locate(points)
         k = len(points)
         init = np.full(k, np.nan + 0j)
@@ -575,27 +827,32 @@ class GeodesicField:
         r = np.flatnonzero(best >= 0)
         if r.size:
             wr = best[r]
-            unit = _unit(here[r] - W.img[wr])
+            W = self.W.records(wr)
+            unit = _unit(here[r] - W.img)
             init[r] = self._initial_directions(wr, unit)
             final[r] = arrival_to_basis(self.mesh, points[r], face[r], unit)
-            src[r] = self.chains.label[W.root[wr]]
+            src[r] = self.chains.label[W.root]
         return GeodesicQuery(dist, src, init, final)
 
     def _initial_directions(self, windows: np.ndarray, unit: np.ndarray) -> np.ndarray:
         """Direction at the source of geodesics that leave ``windows``' pseudosources along ``unit``."""
         W, ps = self.W, self.chains.ps
         w, d = windows.copy(), unit.copy()
-        chained = ps[W.root[w]] >= 0
+        root = W.records(w).root
+        chained = ps[root] >= 0
         while np.any(chained):  # walk back from pseudosource vertices to the source
             idx = np.flatnonzero(chained)
-            u = ps[W.root[w[idx]]]
+            u = ps[root[idx]]
             wp = self.vertex_parent[u]
-            travel = self.mesh.face_points.ravel()[self._vertex_corner[u]] - W.img[wp]
+            back = W.records(wp)
+            travel = self.mesh.face_points.ravel()[self._vertex_corner[u]] - back.img
             d[idx] = travel / np.abs(travel)
             w[idx] = wp
-            chained[idx] = ps[W.root[wp]] >= 0
-        out = d / W.rot[w]
-        corner = self.chains.corner[W.root[w]]
+            root[idx] = back.root
+            chained[idx] = ps[back.root] >= 0
+        last = W.records(w)
+        out = d / last.rot
+        corner = self.chains.corner[last.root]
         vc = corner >= 0
         out[vc] = face_to_vertex(self.mesh, corner[vc], out[vc])
         out[unit == 0] = 0
@@ -617,18 +874,21 @@ class GeodesicField:
         while True:
             # Walk one straight segment back from `end` (in face(w)'s frame) to its pseudosource,
             # recording where it crosses each edge.
-            while W.parent[w] >= 0:
-                he = W.he[w]
+            ids = [w]
+            while W.tree.parent[ids[-1]] >= 0:
+                ids.append(int(W.tree.parent[ids[-1]]))
+            rec = W.records(np.array(ids))
+            for i in range(len(ids) - 1):
+                he = rec.he[i]
                 A, B = mesh.face_points.flat[he], mesh.face_points.flat[mesh.halfedge_next[he]]
-                u = float(_hit(W.img[w], end, A, B))
+                u = float(_hit(rec.img[i], end, A, B))
                 crossing = np.zeros(3)
                 crossing[[he % 3, (he + 1) % 3]] = 1 - u, u
                 faces.append(he // 3)
                 bary.append(crossing)
                 end = mesh.halfedge_offset[he] + mesh.halfedge_rotation[he] * (A + u * (B - A))
-                w = W.parent[w]
-            leave = _unit(end - W.img[w]) / W.rot[w]
-            chain = W.root[w]
+            leave = _unit(end - rec.img[-1]) / rec.rot[-1]
+            chain = rec.root[-1]
             c = self.chains.corner[chain]
             if c >= 0:
                 leave = face_to_vertex(mesh, np.array([c]), np.array([leave]))[0]
@@ -642,11 +902,11 @@ class GeodesicField:
             if vertex < 0:
                 break
             # The segment started at a vertex the path bends around; continue from how it got there.
-            w = self.vertex_parent[vertex]
+            w = int(self.vertex_parent[vertex])
             corner = self._vertex_corner[[vertex]]
             end = complex(mesh.face_points.flat[corner[0]])
             at_vertex = SurfacePoints(corner // 3, np.eye(3)[corner % 3])
-            final = arrival_to_basis(mesh, at_vertex, corner // 3, _unit([end - W.img[w]]))[0]
+            final = arrival_to_basis(mesh, at_vertex, corner // 3, _unit([end - W.records([w]).img[0]]))[0]
         points = SurfacePoints(np.array(faces[::-1]), np.array(bary[::-1]))
         return Path(
             length=float(q.distances[0]),
@@ -668,6 +928,46 @@ def _edge_frames(mesh: TriMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     length = np.abs(edge)
     to_edge = np.conj(edge) / length
     return to_edge, length, (P[mesh.halfedge_prev] - P) * to_edge
+
+
+def _entry_frame(mesh: TriMesh, he: np.ndarray, img: np.ndarray):
+    """Windows on halfedges ``he`` with pseudosource images ``img``, in their entry edge's frame (see
+    :func:`_edge_frames`): the image ``Il``, the edge's length ``L``, the face's third corner ``Cl``, and
+    ``uc``, where the ray through that corner crosses the edge (edge parameter)."""
+    to_edge, length, apex = _edge_frames(mesh)
+    Il = (img - mesh.face_points.ravel()[he]) * to_edge[he]
+    L, Cl = length[he], apex[he]
+    xI, yI = Il.real, Il.imag
+    uc = (xI - yI * (Cl.real - xI) / (Cl.imag - yI)) / L
+    return Il, L, Cl, uc
+
+
+def _exits(Il, Cl, L, uc, u0, u1, on_right):
+    """Where a window's child leaves its face, in the entry edge's frame: the exit edge from ``P0`` to
+    ``P1`` (B -> C for the child on the right of the ray through C, C -> A for the left one) and the
+    child's ends along it, ``t_near`` (from the ray through u0) and ``t_far`` (through u1); where the ray
+    through C bounds a child, it ends exactly at C."""
+    P0, P1 = np.where(on_right, L, Cl), np.where(on_right, Cl, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):  # where C bounds a child, its ray may miss
+        t_near = np.where(on_right & (uc > u0), 1.0, _hit(Il, u0 * L, P0, P1))
+        t_far = np.where(~on_right & (uc < u1), 0.0, _hit(Il, u1 * L, P0, P1))
+    return P0, P1, t_near, t_far
+
+
+def _child(mesh: TriMesh, he, u0, u1, img, rot, child_he, swapped):
+    """The interval (u0, u1), image and rotation of the children on halfedges ``child_he`` of windows
+    ``he, u0, u1, img, rot``: the same operations on the same values as when they were propagated, so the
+    same bits."""
+    Il, L, Cl, uc = _entry_frame(mesh, he, img)
+    h_out = mesh.twin[child_he]
+    _, _, t_near, t_far = _exits(Il, Cl, L, uc, u0, u1, h_out == mesh.halfedge_next[he])
+    rotation = mesh.halfedge_rotation[h_out]
+    return (
+        1 - t_near,
+        1 - t_far,
+        mesh.halfedge_offset[h_out] + _rotated(rotation, img, swapped),
+        rot * rotation,
+    )
 
 
 def _root_faces(mesh: TriMesh, sources: SurfacePoints):

@@ -8,13 +8,22 @@ import pytest
 from contact_edit_addon.commands.cli import main
 
 
-def test_bench_geodesics_prints_the_table(capsys):
+def test_bench_geodesics_prints_the_table(capsys, monkeypatch):
+    from geodesics import benchmark
+
+    monkeypatch.setattr(benchmark, "WHOLE_FIELD_TORI", ((40, 20), (60, 30)))  # not 1M faces again
     assert main(["bench", "geodesics", "--repeat", "1", "--rays", "20"]) == 0
     out = capsys.readouterr().out
     assert "exp_map: 20 rays" in out
     assert "log_map (exact)" in out
     assert "1M faces" in out and "GiB" in out
     assert "potpourri3d" in out and "pygeodesic" in out
+    # Peak resident memory of whole-mesh fields, each measured in its own process, pygeodesic's beside.
+    small = re.search(
+        r"whole-mesh exact field, 1,600 faces .*peak resident ([\d.]+) GiB.*pygeodesic: peak", out
+    )
+    assert small and 0 < float(small.group(1)) < 2
+    assert re.search(r"whole-mesh exact field, 3,600 faces .*peak resident ([\d.]+) GiB", out)
 
 
 @pytest.mark.skipif(importlib.util.find_spec("bpy") is None, reason="needs bpy (the dev extra)")
