@@ -92,11 +92,14 @@ TRUST_REGION = "trust-region"
 #: Where :meth:`ContactIK.solve` starts: ``"local"`` from the given pose, ``"global"`` from the grasp the
 #: contacts imply (:func:`solver.start.grasp_start`), ``"auto"`` the first when every patch but one is
 #: within :data:`EDIT_REACH` of its targets at the given pose (an edit of a solved layout: one patch
-#: moved or turned), else the second.
+#: moved or turned; the solve then stays near that pose, see :meth:`ContactIK.solve`), else the second.
 STARTS = ("auto", "local", "global")
 #: A patch still meets its targets, for ``start="auto"``, when its contacts' median distance to them is
-#: within this many units u (5 mm on a life-size hand).
-EDIT_REACH = 0.5
+#: within this many units u (1 cm on a life-size hand): a solve leaves a pad whose targets it cannot all
+#: meet (a patch draped over a box's edge) several millimetres from them, touching, and an edit of such
+#: a layout is still an edit (with 5 mm, the alien hand's box held 7-8 mm off its patches was solved
+#: afresh after a 25° turn of one pad, and came back turned 67°).
+EDIT_REACH = 1.0
 #: A patch touches when its contacts' median distance to their targets is at most this, in units u (2 mm
 #: on a life-size hand); :attr:`SolveResult.unreached` names the patches that do not.
 TOUCH_DISTANCE = 0.2
@@ -650,7 +653,11 @@ class ContactIK:
         start : str
             One of :data:`STARTS`: from θ0 (``"local"``), from the grasp the contacts imply
             (``"global"``, :mod:`solver.start`; with the :data:`TRUST_REGION` algorithm and a free root),
-            or the second when the hand is far from its contacts (``"auto"``).
+            or the second when the hand is far from its contacts (``"auto"``). An ``"auto"`` start from a
+            given θ0 near its contacts (an edit's re-solve) also stays near θ0, unless the problem has a
+            keyed pose of its own: the λk term pulls towards θ0. A solved pose pressed onto its patches
+            is not a minimum of the plain energy, and a re-solve from it without that term relaxed away:
+            a 25° turn of one pad turned the alien hand on a box by up to 70°, 12° at most with it.
         press : bool, optional
             Press the patches the solve leaves short of touching onto their targets (:meth:`_pressed`;
             default: with the :data:`TRUST_REGION` algorithm). Off, the solve minimizes the energy of
@@ -659,13 +666,22 @@ class ContactIK:
         Returns
         -------
         SolveResult
-            Its energy and terms are those of the given weights, pressed or not.
+            Its energy and terms are those of the given weights, pressed or not (with the λk term
+            towards θ0 of an ``"auto"`` start that stayed near it).
         """
         clock = time.perf_counter()
         if ftol_rel is None:
             ftol_rel = TRUST_REGION_FTOL if self.algorithm == TRUST_REGION else FTOL_REL
         if press is None:
             press = self.algorithm == TRUST_REGION
+        if start == "auto" and theta0 is not None and self.keyed is None:
+            rig = self.hand.rig
+            theta = rig.clip(rig.check_theta(theta0, "theta0"))
+            if self._start_mode(start, theta, free_dofs(rig, free)) == "local":
+                near = self._subset(
+                    np.ones(len(self.contact_weights), bool), self.contact_weights, keyed=theta
+                )
+                return near.solve(theta, free, progress, max_evaluations, ftol_rel, "local", press)
         result = self._solve_pressed(theta0, free, progress, max_evaluations, ftol_rel, start, press)
         if len(result.unreached) > 1 and result.status != "cancelled":
             why = self._out_of_reach(result, free, max_evaluations, ftol_rel, press)
@@ -816,14 +832,15 @@ class ContactIK:
                 return (name,)
         return result.unreached
 
-    def _subset(self, keep: np.ndarray, factors: np.ndarray) -> ContactIK:
-        """This problem with only the contacts ``keep`` (k,) bool, weighted by ``factors`` (k,)."""
+    def _subset(self, keep: np.ndarray, factors: np.ndarray, keyed=None) -> ContactIK:
+        """This problem with only the contacts ``keep`` (k,) bool, weighted by ``factors`` (k,) (and with
+        ``keyed`` (d,) as its keyed pose, if given)."""
         kept = np.unique(self.patch_of[keep])
         return ContactIK(
             self.hand, self.hand_points[np.flatnonzero(keep)], self.target_points[keep],
             self.target_normals[keep], self.weights, prior=self.prior, markers=self.markers,
-            obstacle=self.obstacle, keep_out=self.keep_out, keyed=self.keyed, unit=self.unit,
-            algorithm=self.algorithm, gradient=self.gradient, norm=self.norm,
+            obstacle=self.obstacle, keep_out=self.keep_out, keyed=self.keyed if keyed is None else keyed,
+            unit=self.unit, algorithm=self.algorithm, gradient=self.gradient, norm=self.norm,
             patches=[(self.patch_names[i], int(np.sum(self.patch_of[keep] == i))) for i in kept],
             contact_weights=factors[keep],
         )  # fmt: skip

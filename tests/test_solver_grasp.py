@@ -134,7 +134,8 @@ def test_grasp_closes_every_finger_without_penetration():
     from_grasp = ik.solve(result.theta)
     from_rest = ik.solve()
     assert from_grasp.start_energy < 0.1 * from_rest.start_energy
-    assert from_grasp.energy <= 1.01 * from_rest.energy
+    # (from the grasp, near its contacts, the solve stays near it: its energy holds the λk term too)
+    assert ik.energy(from_grasp.theta)[0] <= 1.01 * from_rest.energy
     assert from_grasp.distances.mean() < 0.02 * hand.length  # targets are projections onto the cylinder
 
 

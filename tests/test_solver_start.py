@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 from geodesics import TriMesh
 from solver import ContactIK, MeshSDF, SolverError, hands, objects, start
 from solver.ik import PRESS_DEPTH, PRESS_FACTOR
-from solver.layouts import BINS, OBJECTS, judge, known_grip, make_layout
+from solver.layouts import BINS, OBJECTS, judge, judge_edit, known_grip, make_layout, turned
 from solver.least_squares import compressed
 from solver.sdf import NarrowBand
 
@@ -186,6 +186,27 @@ def test_an_edit_of_a_solved_layout_starts_where_the_hand_is_and_stays_near(far)
         ContactIK(hand, points, moved, normals, patches=patches).solve(solved.theta, start="global").start
         == "global"
     )
+
+
+def test_an_edit_of_a_pressed_pose_stays_near_it():
+    """The alien hand's two fingertips on a box turned 87°, pressed onto their patches (a pose that is
+    not a minimum of the plain energy): after one pad is turned 25°, a re-solve from there relaxed away
+    and turned the palm 53°. An ``"auto"`` start near its contacts pulls towards the pose it edits (λk),
+    and the hand stays within the issue's 30°, both pads touching."""
+    grip = known_grip(hands.make_hand("alien"), "box")
+    layout = make_layout(grip, bin=BINS[1], seed=[0, list(OBJECTS).index("box"), 1, 3])
+    _, solved = _solve(layout)
+    before = judge(layout.hand, solved.theta, layout)
+    assert before.success
+    edited = turned(layout, 1, 25.0)
+    ik = ContactIK(edited.hand, edited.points, edited.positions, edited.normals, keep_out=edited.sdf,
+                   patches=edited.patches)  # fmt: skip
+    relaxed = ik.solve(solved.theta, start="local")
+    assert judge_edit(layout.hand, before, judge(layout.hand, relaxed.theta, edited), layout.palm).turn > 30
+    edit = ik.solve(solved.theta)
+    assert edit.start == "local" and "keyed" in edit.terms
+    change = judge_edit(layout.hand, before, judge(layout.hand, edit.theta, edited), layout.palm)
+    assert change.turn < 30 and not change.flip
 
 
 def test_a_patch_the_hand_cannot_reach_is_named(far):
