@@ -189,24 +189,28 @@ def test_an_edit_of_a_solved_layout_starts_where_the_hand_is_and_stays_near(far)
 
 
 def test_an_edit_of_a_pressed_pose_stays_near_it():
-    """The alien hand's two fingertips on a box turned 87°, pressed onto their patches (a pose that is
-    not a minimum of the plain energy): after one pad is turned 25°, a re-solve from there relaxed away
-    and turned the palm 53°. An ``"auto"`` start near its contacts pulls towards the pose it edits (λk),
-    and the hand stays within the issue's 30°, both pads touching."""
+    """The alien hand's two fingertips on a box, pressed onto their patches (a pose that is not a minimum
+    of the plain energy): after one pad is turned 25°, a re-solve from there relaxes away, the palm
+    turning 23° in 285 evaluations. An ``"auto"`` start near its contacts pulls towards the pose it edits
+    (λk): half the turn in half the evaluations, both pads touching. (Over the benchmark's 96 alien
+    layouts, and before the global start kept a root fit over a hand standing through the object, the
+    plain re-solve turned the palm up to 70°.)"""
     grip = known_grip(hands.make_hand("alien"), "box")
-    layout = make_layout(grip, bin=BINS[1], seed=[0, list(OBJECTS).index("box"), 1, 3])
+    layout = make_layout(grip, bin=BINS[0], seed=[0, list(OBJECTS).index("box"), 0, 4])
     _, solved = _solve(layout)
     before = judge(layout.hand, solved.theta, layout)
     assert before.success
-    edited = turned(layout, 1, 25.0)
+    edited = turned(layout, 0, 25.0)
     ik = ContactIK(edited.hand, edited.points, edited.positions, edited.normals, keep_out=edited.sdf,
                    patches=edited.patches)  # fmt: skip
-    relaxed = ik.solve(solved.theta, start="local")
-    assert judge_edit(layout.hand, before, judge(layout.hand, relaxed.theta, edited), layout.palm).turn > 30
-    edit = ik.solve(solved.theta)
-    assert edit.start == "local" and "keyed" in edit.terms
-    change = judge_edit(layout.hand, before, judge(layout.hand, edit.theta, edited), layout.palm)
-    assert change.turn < 30 and not change.flip
+    relaxed, edit = ik.solve(solved.theta, start="local"), ik.solve(solved.theta)
+    assert edit.start == "local" and "keyed" in edit.terms and "keyed" not in relaxed.terms
+    turns = [
+        judge_edit(layout.hand, before, judge(layout.hand, r.theta, edited), layout.palm)
+        for r in (relaxed, edit)
+    ]
+    assert turns[0].turn > 20 and turns[1].turn < 0.5 * turns[0].turn and not turns[1].flip
+    assert edit.iterations < 0.5 * relaxed.iterations
 
 
 def test_a_patch_the_hand_cannot_reach_is_named(far):
@@ -310,6 +314,19 @@ def test_the_solids_join_the_solve_once_the_hand_reaches_its_grasp(bin_index, mo
     assert result.start == "global" and result.unreached == ()
     assert judge(layout.hand, result.theta, layout).success
     assert result.iterations < most
+
+
+def test_a_hand_standing_through_the_object_is_not_taken_for_its_grasp():
+    """A mug carried 3 cm and turned 29° from the human hand at rest: the hand where it stands, its fingers
+    solved, has its palm through the mug's wall (penetration thousands of times the rest), yet its energy
+    was the lowest of the starts after their fingers' solves (which thread the wall), and a hand near its
+    contacts is taken as at its grasp: the solve then crept for its 2,000 evaluations to a pose 7 mm off.
+    A root fit of the open hand lies better than that, so the hand where it stands is not the start."""
+    grip = known_grip(hands.make_hand("human"), "mug")
+    layout = make_layout(grip, bin=BINS[0], seed=[0, list(OBJECTS).index("mug"), 0, 5])
+    _, result = _solve(layout)
+    assert result.start == "global" and result.iterations < 500
+    assert judge(layout.hand, result.theta, layout).success
 
 
 def test_pressing_does_not_push_the_skin_in():
