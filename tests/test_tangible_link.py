@@ -376,8 +376,8 @@ def test_a_command_lost_to_a_watchdog_restart_is_sent_again(attempts):
             state = reader.state()
             assert (state.link.commands, state.link.resent, state.link.unacknowledged) == (1, 1, 0)
             assert sim.firmware(root).leds[1]
-            # Sent again one ack timeout (and at most one poll more) after the lost one.
-            assert 0.2 - 1e-9 <= port.command_polls[1] - port.command_polls[0] < 0.2 + 0.03  # times are float sums
+            # Sent again one ack timeout (and at most a poll more) after the lost one (float sums of steps).
+            assert 0.2 - 1e-9 <= port.command_polls[1] - port.command_polls[0] < 0.2 + 0.03
         assert sim.firmware(root).restarts == 1  # the stall did restart the splitter
         assert state.link.missing >= 1  # and the poll with the command got no reply
 
