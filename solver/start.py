@@ -105,17 +105,15 @@ def grasp_start(ik, theta: np.ndarray, index: np.ndarray, descend: Descend, judg
             t = candidates[i]
             if i != stands:
                 t = _root_fit(ik, t, root, weights)
-                fitted = min(
-                    fitted, judge(t)
-                )  # the hand laid onto its contacts: a better pose to show at once
+                # the hand laid onto its contacts: a better pose to show at once
+                fitted = min(fitted, judge(t))
             if fingers.size:
                 t = descend(t, fingers, FINGER_EVALUATIONS)
             candidates[i], energies[i] = t, judge(t)
         going &= energies <= PRUNE * energies.min()
     if fingers.size and energies[stands] > fitted:
-        energies[stands] = (
-            np.inf
-        )  # a root fit does better: the hand stands through the object, not at its grasp
+        # a root fit lies better: the hand stands through the object, not at its grasp
+        energies[stands] = np.inf
     best = int(np.argmin(energies))
     if (best == stands and not ik.far(candidates[best])) or (ik.obstacle is None and ik.keep_out is None):
         return candidates[best]  # the hand at its grasp, only its fingers to wrap; or no solids
