@@ -267,14 +267,6 @@ class _Windows:
         self._compacted = max(n, WINDOWS_RESERVED)
         return moved
 
-    def held(self, name: str, ids: np.ndarray) -> np.ndarray:
-        """Column ``name`` of windows ``ids`` whose records are held (windows that gave a vertex its
-        distance are)."""
-        rec = self.rec
-        if rec.size == self.tree.size:
-            return rec.data[name][ids]
-        return rec.data[name][np.searchsorted(rec.id, np.asarray(ids).astype(rec.id.dtype, copy=False))]
-
     def records(self, ids: np.ndarray) -> _Records | _HeldRecords:
         """The whole records of windows ``ids`` (any shape of ints >= 0), rebuilding those not held."""
         rec, tree = self.rec, self.tree
@@ -683,7 +675,7 @@ class GeodesicField:
         Pf = mesh.face_points.ravel()
         to_edge, length, apex = _edge_frames(mesh)
         parent, corner_in = self.vertex_parent[verts], self._vertex_corner[verts]
-        back = W.held("img", parent) - Pf[corner_in]  # towards where the geodesic came from
+        back = W.records(parent).img - Pf[corner_in]  # towards where the geodesic came from
         theta = mesh.angle_sums[verts]
         boundary = mesh.is_boundary_vertex[verts]
         a_back = mesh.halfedge_angle[corner_in] + np.angle(back * to_edge[corner_in])
@@ -716,7 +708,7 @@ class GeodesicField:
         if h.size == 0:
             return
         sigma = self.vertex_distance[u]
-        label = self.chains.label[W.held("root", self.vertex_parent[u])]
+        label = self.chains.label[W.records(self.vertex_parent[u]).root]
         chain = self.chains.append(label=label, sigma=sigma, ps=u, birth=self._birth[u], corner=h)
         direct = W.add(he=h, u0=0.0, u1=1.0, img=Pf[h], rot=1.0, root=chain, parent=-1, phase=0)
         nxt, prv = mesh.halfedge_next[h], mesh.halfedge_prev[h]
