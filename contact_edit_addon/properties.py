@@ -13,6 +13,19 @@ import bpy
 
 from solver import KEEP_OUT_WEIGHT
 
+#: How a patch's axis is laid when it is painted or asked for again (in this order: a file keeps an
+#: enum's position).
+DEFAULT_AXES = [
+    ("FARTHEST", "Farthest points", "The geodesic between the patch's two farthest points"),
+    ("MEDIAL", "Medial axis", "The patch's smoothed medial axis"),
+    (
+        "BONE",
+        "Along the bone",
+        "Down the patch's middle along the bone that weights it most: along the finger on a finger pad, "
+        "along the hand on the palm (the farthest points on a mesh no armature deforms)",
+    ),
+]
+
 
 def _renamed(self, context) -> None:
     """A name edited in the patch list renames the patch in its set."""
@@ -134,10 +147,7 @@ class CONTACT_EDIT_PG_scene(bpy.types.PropertyGroup):
     )
     axis_method: bpy.props.EnumProperty(
         name="Default axis",
-        items=[
-            ("FARTHEST", "Farthest points", "The geodesic between the patch's two farthest points"),
-            ("MEDIAL", "Medial axis", "The patch's smoothed medial axis"),
-        ],
+        items=DEFAULT_AXES,
         default="FARTHEST",
     )
     brush_radius: bpy.props.IntProperty(

@@ -13,7 +13,8 @@
 The contact model (Contact Edit §4, Algorithms 1-5) is built on them:
 
 * :class:`Axis` — a piecewise geodesic carrying a patch; :class:`ContactPatch` — a patch parameterized by
-  its axis, with transfer, translate, rotate and bend; :func:`farthest_pair_axis`, :func:`medial_axis`.
+  its axis, with transfer, translate, rotate and bend; :func:`farthest_pair_axis`, :func:`medial_axis`,
+  :func:`directed_axis`.
 * :class:`ContactSet` — named patches with parent links and pairs, saved as JSON contact files.
 * :class:`ContactAtlas` — charts around axial curves for moving contacts between different hands.
 * :mod:`geodesics.sampling` (even surface samples at a density) and :mod:`geodesics.brush` (the area
@@ -35,7 +36,7 @@ from .axis import Axis
 from .brush import Dab, erase, paint
 from .closest import Closest, ClosestPoints
 from .contacts import ContactSet, Link
-from .default_axes import farthest_pair_axis, medial_axis
+from .default_axes import directed_axis, farthest_pair_axis, medial_axis
 from .errors import ContactError, GeodesicError, MeshError, MeshWarning, describe_ids
 from .exact import GeodesicField, GeodesicQuery, Path
 from .files import read_json, write_atomically
@@ -75,6 +76,7 @@ __all__ = [
     "change_basis",
     "closest_points",
     "describe_ids",
+    "directed_axis",
     "erase",
     "exp_map",
     "farthest_pair_axis",

@@ -4,6 +4,10 @@
 * :func:`medial_axis` — an approximate (smoothed) medial axis: the heat-method distance from the patch
   boundary, the vertices where its gradient turns by more than π/2 between the faces around them,
   joined greedily in order of Dijkstra distance.
+
+And one for patches whose shape does not say which way they run: :func:`directed_axis`, along a
+direction given (on a hand, the bone under the patch: a round fingertip pad's axis then runs along the
+finger, where its farthest pair lies anywhere around its rim).
 """
 
 from __future__ import annotations
@@ -103,6 +107,31 @@ def _edge_graph(mesh: TriMesh) -> coo_matrix:
     h = np.flatnonzero((mesh.twin < 0) | (np.arange(3 * mesh.n_faces) < mesh.twin))
     tail, head = mesh.halfedge_tail[h], mesh.halfedge_tail[mesh.halfedge_next[h]]
     return coo_matrix((mesh.halfedge_lengths[h], (tail, head)), shape=(mesh.n_vertices, mesh.n_vertices))
+
+
+def directed_axis(mesh: TriMesh, points: SurfacePoints, direction) -> Axis:
+    """Axis along ``direction`` (3,) down the patch's middle: the shortest geodesic between the patch
+    points farthest back and forward along it, where each step off the line through the patch's centroid
+    along it counts as a step back (so the ends lie near that line even on a patch of few points), from
+    the back end to the front one.
+
+    Raises ContactError for a direction that is not finite and non-zero, or a patch with no extent
+    along it.
+    """
+    direction = np.asarray(direction, float)
+    if direction.shape != (3,) or not np.all(np.isfinite(direction)) or not np.any(direction):
+        raise ContactError(f"an axis direction must be a finite, non-zero 3-vector, got {direction.tolist()}")
+    if len(points) < 2:
+        raise ContactError(f"a default axis needs at least two patch points, got {len(points)}")
+    unit = direction / np.linalg.norm(direction)
+    X = points.positions(mesh)
+    X = X - X.mean(axis=0)
+    along = X @ unit
+    off_line = np.linalg.norm(X - along[:, None] * unit, axis=1)
+    start, end = int(np.argmin(along + off_line)), int(np.argmax(along - off_line))
+    if along[end] <= along[start]:
+        raise ContactError("the patch has no extent along the axis direction; pick an axis by hand")
+    return Axis.between(mesh, points[[start]], points[[end]])
 
 
 def medial_axis(mesh: TriMesh, points: SurfacePoints, spacing: float | None = None) -> Axis:

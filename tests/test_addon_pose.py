@@ -388,6 +388,44 @@ def test_flex_to_contact_curls_selected_fingers_onto_the_object(tmp_path):
     assert out["deepest"] > -1e-3 * out["length"]  # touching, not sinking in (Blender's float32 mesh)
 
 
+def test_a_pad_painted_on_a_finger_can_have_its_axis_along_the_finger(tmp_path):
+    """*Along the bone* lays the axis along the bone that weights the patch most: a fingertip pad is
+    nearly round, and its farthest pair (the paper's default, the scene's) runs across it diagonally."""
+    out = run_blender(
+        """
+        faces = kit.palmar_faces(kit.rig.names.index("middle_3"))
+        pad = np.zeros(len(hand.data.vertices), bool)
+        pad[np.unique(kit.mesh.faces[faces])] = True
+        hand.data.vertices.foreach_set("select", pad)
+        bpy.ops.contact_edit.paint(name="bone", source="SELECTION", axis_method="BONE")
+        bpy.ops.contact_edit.paint(name="farthest", source="SELECTION")
+        contacts = store.load(hand)
+        to_hand = np.linalg.inv(np.array(hand.matrix_world)) @ np.array(armature.matrix_world)
+        along = to_hand[:3, :3] @ np.array(armature.data.bones["middle_3"].matrix_local)[:3, 1]
+        cosines = {}
+        for name in ("bone", "farthest"):
+            X = contacts[name].axis.points.positions(contacts.mesh)
+            chord = X[-1] - X[0]
+            cosines[name] = float(chord @ along / np.linalg.norm(chord) / np.linalg.norm(along))
+        ball = assets.mesh_object("Ball", objects.sphere(0.05), scene.collection)  # no armature
+        bpy.context.view_layer.objects.active = ball
+        ball.data.vertices.foreach_set("select", [v.co.z > 0.04 for v in ball.data.vertices])
+        for method in ("BONE", "FARTHEST"):
+            bpy.ops.contact_edit.paint(name=method, source="SELECTION", axis_method=method, object_name="Ball")
+        on_ball = store.load(ball)
+        same = on_ball["BONE"].axis.points.positions(on_ball.mesh).tolist() == (
+            on_ball["FARTHEST"].axis.points.positions(on_ball.mesh).tolist())
+        result(dict(default=scene.contact_edit.axis_method, cosines=cosines, ball_farthest=same))
+        """,
+        tmp_path,
+        setup=SETUP,
+    )
+    assert out["default"] == "FARTHEST"
+    assert out["cosines"]["bone"] > 0.95  # measured in the library: 0.98 (farthest pair 0.77)
+    assert abs(out["cosines"]["farthest"]) < 0.9
+    assert out["ball_farthest"]  # on a mesh no armature deforms, the farthest points
+
+
 def test_contacts_mirror_onto_the_other_hand(tmp_path):
     """A patch painted on the right hand, mirrored, lands on the left hand's mirror-image points exactly;
     mirrored while the hand edits its annotation, a marker lands in the left hand's annotation."""

@@ -11,6 +11,7 @@ from geodesics import (
     ContactSet,
     SurfacePoints,
     TriMesh,
+    directed_axis,
     farthest_pair_axis,
     log_map,
     medial_axis,
@@ -330,6 +331,41 @@ def test_medial_axis_of_a_two_phalanx_pad_runs_along_the_finger(human):
     chord = X[-1] - X[0]
     assert abs(chord @ along) > 0.95 * np.linalg.norm(chord)  # measured 0.99
     assert 0.25 * farthest.length < axis.length < 0.75 * farthest.length  # measured 18.9 of 45.3 mm
+
+
+def test_a_directed_axis_joins_the_extremes_along_its_direction(plane):
+    """On the plane the geodesic is the straight segment between the patch points farthest back and forward
+    along the direction (a step off the centre line counting as a step back), whatever the patch's own
+    diameter (here the ellipse's, across the direction)."""
+    rng = np.random.default_rng(8)
+    pool = SurfacePoints(rng.integers(0, plane.n_faces, 40000), rng.dirichlet([2.0, 2.0, 2.0], 40000))
+    X = pool.positions(plane)
+    points = pool[np.flatnonzero(((X[:, 0] - 1.0) / 0.12) ** 2 + ((X[:, 1] - 1.0) / 0.45) ** 2 < 1)[:400]]
+    P = points.positions(plane)
+    axis = directed_axis(plane, points, [1.0, 0.0, 0.0])
+    ends = axis.points[[0, len(axis) - 1]].positions(plane)
+    centre = P.mean(axis=0)
+    x, y = P[:, 0] - centre[0], np.abs(P[:, 1] - centre[1])  # along, and off the line through the centre
+    np.testing.assert_allclose(ends, P[[np.argmin(x + y), np.argmax(x - y)]], atol=1e-12)
+    assert axis.length == pytest.approx(np.linalg.norm(ends[1] - ends[0]), rel=1e-12)
+    assert axis.length < 0.4 * farthest_pair_axis(plane, points).length  # across the ellipse, not along
+
+
+def test_a_fingertip_pads_axis_along_its_bone_runs_along_the_finger(human):
+    """A fingertip pad is nearly round, so its farthest pair lies anywhere around its rim; along the
+    bone its axis runs from the pad's back to the tip."""
+    points = pad(human, "middle_3")
+    along = human.rig.matrix_local[human.rig.names.index("middle_3"), :3, 1]
+    X = directed_axis(human.mesh, points, along).points.positions(human.mesh)
+    chord = X[-1] - X[0]
+    assert chord @ along > 0.95 * np.linalg.norm(chord)
+
+
+@pytest.mark.parametrize("direction", [[0.0, 0.0, 0.0], [np.nan, 1.0, 0.0], [1.0, 0.0]])
+def test_a_directed_axis_needs_a_direction(plane, direction):
+    points = disk(plane, [1.0, 1.0], 0.1, 50, seed=3)
+    with pytest.raises(ContactError, match="axis direction must be a finite, non-zero 3-vector"):
+        directed_axis(plane, points, direction)
 
 
 def test_transfer_without_the_hierarchy_moves_one_patch(hand):

@@ -190,6 +190,24 @@ def contact_bones(rig: HandRig, faces: np.ndarray, points: SurfacePoints | None)
     return [rig.deform[i] for i in np.unique(strongest[weighted])]
 
 
+def bone_direction(obj: bpy.types.Object, faces: np.ndarray, points: SurfacePoints, deformed: bool = False):
+    """(3,) in ``obj``'s space: the length axis (head to tail) of the deform bone that weights the
+    ``points`` (on the triangles ``faces``) most, at rest or, when ``deformed``, as posed; None for a mesh
+    no armature deforms the way contact IK models, or no deform bone weights there."""
+    try:
+        armature = armature_modifier(obj).object
+        to_armature = _hand_to_armature(obj, armature)
+    except BridgeError:
+        return None
+    corners = np.unique(faces[points.faces].ravel())
+    weight = np.asarray(_deform_weights(obj, armature)[corners].sum(axis=0)).ravel()
+    if not weight.any():
+        return None
+    name = armature.data.bones[int(np.argmax(weight))].name
+    bone = armature.pose.bones[name].matrix if deformed else armature.data.bones[name].matrix_local
+    return np.linalg.solve(to_armature[:3, :3], np.array(bone)[:3, 1])
+
+
 def hand_plan(
     rig: HandRig, faces: np.ndarray, points: SurfacePoints | None = None, hand_root: str = ""
 ) -> Plan:

@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import bpy
 
-from geodesics import Axis, farthest_pair_axis, medial_axis
+from geodesics import Axis
 
 from .. import store
+from ..properties import DEFAULT_AXES
 from .background import Background, Plan
-from .common import HotkeyTool, guarded, mesh_object, nearest_point, need_patch, ray_hit
+from .common import HotkeyTool, default_axis, guarded, mesh_object, nearest_point, need_patch, ray_hit
 
 
 class CONTACT_EDIT_OT_axis(Background, HotkeyTool, bpy.types.Operator):
@@ -25,8 +26,7 @@ class CONTACT_EDIT_OT_axis(Background, HotkeyTool, bpy.types.Operator):
         name="Axis",
         items=[
             ("POINTS", "Start and end", "The shortest geodesic from a start point to an end point"),
-            ("FARTHEST", "Farthest points", "The geodesic between the patch's two farthest points"),
-            ("MEDIAL", "Medial axis", "The patch's smoothed medial axis"),
+            *DEFAULT_AXES,
         ],
         default="POINTS",
     )
@@ -83,10 +83,7 @@ class CONTACT_EDIT_OT_axis(Background, HotkeyTool, bpy.types.Operator):
             def make_axis():
                 return Axis.between(mesh, *ends)
         else:
-            method = medial_axis if self.method == "MEDIAL" else farthest_pair_axis
-
-            def make_axis():
-                return method(mesh, patch.points)
+            make_axis = default_axis(obj, mesh, patch.points, self.method, deformed=False)  # as loaded
 
         def commit(context, changed):
             store.save(obj, contacts.replace(name, changed))

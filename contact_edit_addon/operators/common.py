@@ -9,7 +9,16 @@ import bpy
 import numpy as np
 from bpy_extras import view3d_utils
 
-from geodesics import ContactError, GeodesicError, MeshError, SurfacePoints, tangent_from_3d
+from geodesics import (
+    ContactError,
+    GeodesicError,
+    MeshError,
+    SurfacePoints,
+    directed_axis,
+    farthest_pair_axis,
+    medial_axis,
+    tangent_from_3d,
+)
 from solver import SolverError
 from tangible import TangibleError
 
@@ -83,6 +92,18 @@ def surface_direction(obj, mesh, point: SurfacePoints, world_direction) -> compl
     if abs(z) < 1e-12:
         raise ContactError("the direction is perpendicular to the surface there; pick one along it")
     return z / abs(z)
+
+
+def default_axis(obj, mesh, points: SurfacePoints, method: str, deformed: bool):
+    """The work that lays the default axis of ``points`` on ``obj``'s ``mesh`` by ``method`` (one of
+    :data:`~..properties.DEFAULT_AXES`), to run off the main thread: what it needs of Blender (the bone
+    under the patch) is read now."""
+    if method == "MEDIAL":
+        return lambda: medial_axis(mesh, points)
+    direction = bridge.bone_direction(obj, mesh.faces, points, deformed) if method == "BONE" else None
+    if direction is None:
+        return lambda: farthest_pair_axis(mesh, points)
+    return lambda: directed_axis(mesh, points, direction)
 
 
 def ray_hit(context, event, obj):

@@ -24,15 +24,14 @@ from geodesics import (
     Dab,
     SurfacePoints,
     erase,
-    farthest_pair_axis,
-    medial_axis,
     paint,
 )
 
 from .. import bridge, store
+from ..properties import DEFAULT_AXES
 from ..ui import overlays
 from .background import Background, Plan
-from .common import NAVIGATION, HotkeyTool, guarded, mesh_object, need_mesh, unique_name
+from .common import NAVIGATION, HotkeyTool, default_axis, guarded, mesh_object, need_mesh, unique_name
 
 #: Brush dabs per radius of stroke length.
 DABS_PER_RADIUS = 3.0
@@ -52,11 +51,7 @@ class CONTACT_EDIT_PG_stroke_point(bpy.types.PropertyGroup):
     radius: bpy.props.FloatProperty(name="Radius", min=0.0, description="World units; 0: just this point")
 
 
-AXIS_METHODS = [
-    ("SCENE", "Scene default", "Use the scene's default axis method"),
-    ("FARTHEST", "Farthest points", "The geodesic between the patch's two farthest points"),
-    ("MEDIAL", "Medial axis", "The patch's smoothed medial axis"),
-]
+AXIS_METHODS = [("SCENE", "Scene default", "Use the scene's default axis method"), *DEFAULT_AXES]
 MODES = [
     ("NEW", "New patch", "Make a new patch of what the stroke covers"),
     ("ADD", "Add", "Add what the stroke covers to the active patch (Shift)"),
@@ -322,8 +317,8 @@ class CONTACT_EDIT_OT_paint(Background, HotkeyTool, bpy.types.Operator):
     def _new(self, context, obj, mesh, points):
         settings = context.scene.contact_edit
         method = settings.axis_method if self.axis_method == "SCENE" else self.axis_method
-        make_axis = medial_axis if method == "MEDIAL" else farthest_pair_axis
         deformed, base, where = settings.deformed and obj == settings.hand, self.name or "contact", obj.name
+        make_axis = default_axis(obj, mesh, points, method, deformed)
 
         def commit(context, patch):
             obj = mesh_object(context, where)
@@ -338,7 +333,7 @@ class CONTACT_EDIT_OT_paint(Background, HotkeyTool, bpy.types.Operator):
             return {"FINISHED"}
 
         label = f"Making a patch of {len(points)} points on '{where}'"
-        return Plan(label, lambda: ContactPatch(mesh, points, make_axis(mesh, points)), commit)
+        return Plan(label, lambda: ContactPatch(mesh, points, make_axis()), commit)
 
     def _add(self, context, obj, active, points):
         contacts, name = active
