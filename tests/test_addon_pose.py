@@ -411,7 +411,7 @@ def test_a_pad_painted_on_a_finger_can_have_its_axis_along_the_finger(tmp_path):
         bpy.context.view_layer.objects.active = ball
         ball.data.vertices.foreach_set("select", [v.co.z > 0.04 for v in ball.data.vertices])
         for method in ("BONE", "FARTHEST"):
-            bpy.ops.contact_edit.paint(name=method, source="SELECTION", axis_method=method, object_name="Ball")
+            bpy.ops.contact_edit.paint(name=method, source="SELECTION", axis_method=method)
         on_ball = store.load(ball)
         same = on_ball["BONE"].axis.points.positions(on_ball.mesh).tolist() == (
             on_ball["FARTHEST"].axis.points.positions(on_ball.mesh).tolist())
