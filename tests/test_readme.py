@@ -296,7 +296,7 @@ def test_the_retargeting_lines_run_as_written(tmp_path):
         done = fresh_process(readme.command(line), user_dir=tmp_path / "user", cwd=tmp_path)
         assert done.returncode == 0, done.stderr
     summary = json.loads((tmp_path / "witch" / "summary.json").read_text())
-    assert summary["frames"] == 240 and summary["warnings"] == []
+    assert summary["frames"] == 120 and summary["warnings"] == []
     assert summary["refinement"].startswith(("converged", "rounds stopped helping"))
     assert summary["median_contact_distance_mm"] < 1.5 * summary["median_estimate_contact_distance_mm"]
     assert {"motion.npz", "curves.npz", "summary.json", "annotation.json", "metrics.png"} <= {
