@@ -377,7 +377,7 @@ class ContactIK:
     keep_out : MeshSDF, optional
         The object itself (closed, in the hand's space): its inside costs λo, within
         :data:`KEEP_OUT_BAND` of its surface (see the module docstring). Anything with
-        ``evaluate(points, band)`` works here too.
+        ``evaluate(points, band=np.inf)`` works here too.
     keyed : (d,) array_like, optional
         A previous keyed pose for the λk prior.
     unit : float, optional
@@ -467,9 +467,9 @@ class ContactIK:
         self.obstacle, self.keep_out = obstacle, keep_out
         self._solids = []  # what the hand's vertices stay out of: (term, weight, signed distance)
         self._exact = []  # the same, exact at any depth (pressing's check), each followed as the skin moves
-        if obstacle is not None:
-            self._solids.append(("table", self.weights.t, obstacle.evaluate))
-            self._exact.append(obstacle.evaluate)
+        if obstacle is not None:  # its exact distance, queried only where the skin may have come inside
+            self._solids.append(("table", self.weights.t, NarrowBand(obstacle, np.inf).evaluate))
+            self._exact.append(NarrowBand(obstacle, np.inf).evaluate)
         if keep_out is not None:
             inside = NarrowBand(keep_out, KEEP_OUT_BAND * self.unit).evaluate
             self._solids.append(("penetration", self.weights.o, inside))

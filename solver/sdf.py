@@ -206,7 +206,8 @@ class NarrowBand:
 
     Parameters
     ----------
-    solid : MeshSDF or any object with ``evaluate(points, band) -> (sd, gradient)``
+    solid : MeshSDF or any object with ``evaluate(points, band) -> (sd, gradient)``; with an infinite
+        band, anything with ``evaluate(points)`` (a :class:`Box`, a :class:`HalfSpace`)
     band : float
     """
 
@@ -231,7 +232,11 @@ class NarrowBand:
         gradient = np.zeros_like(X)
         near = np.flatnonzero((beyond <= self.band) & (outside <= 0))
         if near.size:
-            sd, g = self.solid.evaluate(X[near], self.band)
+            sd, g = (
+                self.solid.evaluate(X[near], self.band)
+                if np.isfinite(self.band)
+                else (self.solid.evaluate(X[near]))
+            )
             within = sd >= -self.band
             signed[near] = np.where(within, sd, -sd)
             gradient[near] = np.where(within[:, None], g, 0.0)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from geodesics import TriMesh
+from geodesics import SurfacePoints, TriMesh
 from solver import ContactIK, MeshSDF, SolverError, hands, objects, start
 from solver.ik import PRESS_DEPTH, PRESS_FACTOR
 from solver.layouts import BINS, OBJECTS, judge, judge_edit, known_grip, make_layout, turned
@@ -103,9 +103,9 @@ def test_an_unbounded_band_gives_exact_depths_at_any_depth_and_queries_only_what
     queried = []
 
     class Counting:
-        def evaluate(self, x, b):
+        def evaluate(self, x):  # exact at every depth (an unbounded band asks for no band)
             queried.append(len(x))
-            return ball.evaluate(x, b)
+            return ball.evaluate(x)
 
     tracked = NarrowBand(Counting(), np.inf)
     rng = np.random.default_rng(4)
@@ -118,6 +118,40 @@ def test_an_unbounded_band_gives_exact_depths_at_any_depth_and_queries_only_what
         np.testing.assert_allclose(signed[inside], exact[inside], rtol=0, atol=1e-15)
         assert np.all(signed[~inside] > 0)
     assert queried[0] == len(V) and max(queried[1:]) < len(V) / 2
+
+
+def test_the_table_is_queried_only_where_the_skin_may_have_come_inside_and_the_energy_is_the_same():
+    """The retargeting's table (a Box, exact at any depth) behind an unbounded band: over a solve's
+    evaluations the energy and gradient are bit for bit those of the table queried at every vertex (a
+    fresh solve's first evaluation), while most evaluations query a small part of the skin."""
+    from solver.sdf import Box
+
+    hand = hands.make_hand("human")
+    points = SurfacePoints.concatenate(hand.contact_patches(12, seed=0).values())
+    P, N = hand.posed_points(hand.rig.rest, points)
+    N = -N  # the targets' outward normals face the pads
+    V = hand.posed_vertices(hand.rig.rest)
+    low = V[:, 2].min() + 0.002  # the table's top: 2 mm above the lowest skin
+    table = Box([V[:, 0].mean(), V[:, 1].mean(), low - 0.1], [0.3, 0.3, 0.1])
+    queried = []
+
+    class Counting:
+        def evaluate(self, x):
+            queried.append(len(x))
+            return table.evaluate(x)
+
+    tracked = ContactIK(hand, points, P, N, obstacle=Counting())
+    rng = np.random.default_rng(3)
+    theta, inside = hand.rig.rest, []
+    for _ in range(12):
+        theta = theta + rng.normal(size=hand.rig.n_dofs) * np.where(hand.rig.is_rotation, 0.01, 0.0005)
+        e, terms, g = tracked.energy_and_gradient(theta)
+        fresh = ContactIK(hand, points, P, N, obstacle=table)  # its first evaluation queries every vertex
+        e_exact, terms_exact, g_exact = fresh.energy_and_gradient(theta)
+        assert e == e_exact and terms == terms_exact and np.array_equal(g, g_exact)
+        inside.append(terms["table"] > 0)
+    assert any(inside)  # some skin came inside
+    assert queried[0] == len(V) and np.median(queried[1:]) < len(V) / 10
 
 
 def _layout(angle_degrees: float, shift: float, seed: int = 0):
