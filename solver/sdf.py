@@ -232,11 +232,10 @@ class NarrowBand:
         gradient = np.zeros_like(X)
         near = np.flatnonzero((beyond <= self.band) & (outside <= 0))
         if near.size:
-            sd, g = (
-                self.solid.evaluate(X[near], self.band)
-                if np.isfinite(self.band)
-                else (self.solid.evaluate(X[near]))
-            )
+            if np.isfinite(self.band):
+                sd, g = self.solid.evaluate(X[near], self.band)
+            else:  # exact at every depth: no band to pass
+                sd, g = self.solid.evaluate(X[near])
             within = sd >= -self.band
             signed[near] = np.where(within, sd, -sd)
             gradient[near] = np.where(within[:, None], g, 0.0)
