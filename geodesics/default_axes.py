@@ -110,28 +110,33 @@ def _edge_graph(mesh: TriMesh) -> coo_matrix:
 
 
 def directed_axis(mesh: TriMesh, points: SurfacePoints, direction) -> Axis:
-    """Axis along ``direction`` (3,) down the patch's middle: the shortest geodesic between the patch
-    points farthest back and forward along it, where each step off the line through the patch's centroid
-    along it counts as a step back (so the ends lie near that line even on a patch of few points), from
-    the back end to the front one.
+    """Axis along ``direction`` (3,) down the patch's middle: ``direction`` is taken in the patch's mean
+    tangent plane, and the axis is the shortest geodesic between the surface points nearest the two ends
+    of the patch's extent along it through its centroid, from the end it points away from to the one it
+    points to.
 
-    Raises ContactError for a direction that is not finite and non-zero, or a patch with no extent
-    along it.
+    Raises ContactError for a direction that is not finite and non-zero or along the patch's normal, or
+    a patch with no extent along it.
     """
     direction = np.asarray(direction, float)
     if direction.shape != (3,) or not np.all(np.isfinite(direction)) or not np.any(direction):
         raise ContactError(f"an axis direction must be a finite, non-zero 3-vector, got {direction.tolist()}")
     if len(points) < 2:
         raise ContactError(f"a default axis needs at least two patch points, got {len(points)}")
-    unit = direction / np.linalg.norm(direction)
+    normal = mesh.face_normals[points.faces].sum(axis=0)
+    normal /= np.linalg.norm(normal)
+    tangent = direction / np.linalg.norm(direction)
+    tangent = tangent - (tangent @ normal) * normal
+    if np.linalg.norm(tangent) < 1e-6:
+        raise ContactError("the axis direction is the patch's normal; pick an axis by hand")
+    tangent /= np.linalg.norm(tangent)
     X = points.positions(mesh)
-    X = X - X.mean(axis=0)
-    along = X @ unit
-    off_line = np.linalg.norm(X - along[:, None] * unit, axis=1)
-    start, end = int(np.argmin(along + off_line)), int(np.argmax(along - off_line))
-    if along[end] <= along[start]:
+    centroid = X.mean(axis=0)
+    along = (X - centroid) @ tangent
+    if along.max() <= along.min():
         raise ContactError("the patch has no extent along the axis direction; pick an axis by hand")
-    return Axis.between(mesh, points[[start]], points[[end]])
+    ends = SurfacePoints.nearest(mesh, centroid + np.outer([along.min(), along.max()], tangent))
+    return Axis.between(mesh, ends[[0]], ends[[1]])
 
 
 def medial_axis(mesh: TriMesh, points: SurfacePoints, spacing: float | None = None) -> Axis:

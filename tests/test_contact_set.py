@@ -333,20 +333,21 @@ def test_medial_axis_of_a_two_phalanx_pad_runs_along_the_finger(human):
     assert 0.25 * farthest.length < axis.length < 0.75 * farthest.length  # measured 18.9 of 45.3 mm
 
 
-def test_a_directed_axis_joins_the_extremes_along_its_direction(plane):
-    """On the plane the geodesic is the straight segment between the patch points farthest back and forward
-    along the direction (a step off the centre line counting as a step back), whatever the patch's own
-    diameter (here the ellipse's, across the direction)."""
+def test_a_directed_axis_runs_through_the_centroid_across_the_patchs_extent(plane):
+    """On the plane the geodesic is the straight segment through the patch's centroid along the direction,
+    from its lowest extent along it to its highest, whatever the patch's own diameter (here the
+    ellipse's, across the direction)."""
     rng = np.random.default_rng(8)
     pool = SurfacePoints(rng.integers(0, plane.n_faces, 40000), rng.dirichlet([2.0, 2.0, 2.0], 40000))
     X = pool.positions(plane)
     points = pool[np.flatnonzero(((X[:, 0] - 1.0) / 0.12) ** 2 + ((X[:, 1] - 1.0) / 0.45) ** 2 < 1)[:400]]
     P = points.positions(plane)
-    axis = directed_axis(plane, points, [1.0, 0.0, 0.0])
+    axis = directed_axis(plane, points, [1.0, 0.0, 0.7])  # its part along the plane's normal is dropped
     ends = axis.points[[0, len(axis) - 1]].positions(plane)
     centre = P.mean(axis=0)
-    x, y = P[:, 0] - centre[0], np.abs(P[:, 1] - centre[1])  # along, and off the line through the centre
-    np.testing.assert_allclose(ends, P[[np.argmin(x + y), np.argmax(x - y)]], atol=1e-12)
+    np.testing.assert_allclose(
+        ends, [[P[:, 0].min(), centre[1], 0], [P[:, 0].max(), centre[1], 0]], atol=1e-12
+    )
     assert axis.length == pytest.approx(np.linalg.norm(ends[1] - ends[0]), rel=1e-12)
     assert axis.length < 0.4 * farthest_pair_axis(plane, points).length  # across the ellipse, not along
 
@@ -361,10 +362,18 @@ def test_a_fingertip_pads_axis_along_its_bone_runs_along_the_finger(human):
     assert chord @ along > 0.95 * np.linalg.norm(chord)
 
 
-@pytest.mark.parametrize("direction", [[0.0, 0.0, 0.0], [np.nan, 1.0, 0.0], [1.0, 0.0]])
-def test_a_directed_axis_needs_a_direction(plane, direction):
+@pytest.mark.parametrize(
+    "direction, message",
+    [
+        ([0.0, 0.0, 0.0], "must be a finite, non-zero 3-vector"),
+        ([np.nan, 1.0, 0.0], "must be a finite, non-zero 3-vector"),
+        ([1.0, 0.0], "must be a finite, non-zero 3-vector"),
+        ([0.0, 0.0, -2.0], "is the patch's normal"),
+    ],
+)
+def test_a_directed_axis_needs_a_direction_along_the_patch(plane, direction, message):
     points = disk(plane, [1.0, 1.0], 0.1, 50, seed=3)
-    with pytest.raises(ContactError, match="axis direction must be a finite, non-zero 3-vector"):
+    with pytest.raises(ContactError, match=message):
         directed_axis(plane, points, direction)
 
 

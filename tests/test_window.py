@@ -230,6 +230,19 @@ def test_the_axis_start_is_a_large_white_marker(brush):
     assert np.all(hidden > 235, axis=2).sum() < 10
 
 
+def test_a_round_pad_painted_with_the_bone_axis_has_its_axis_along_the_finger(brush):
+    """One click of the brush on the middle fingertip with *Along the bone* chosen: along the pad (in
+    the plane that fits it), the axis runs from the pad's back towards the fingertip as the bone under it
+    does (the farthest points of a round pad lie anywhere around its rim)."""
+    r = brush.results["bone_axis"]
+    axis, finger, points = np.array(r["axis"]), np.array(r["finger"]), np.array(r["points"])
+    normal = np.linalg.svd(points - points.mean(0))[2][2]
+    chord, finger = (v - (v @ normal) * normal for v in (axis[-1] - axis[0], finger))
+    assert len(points) > 20 and np.linalg.norm(chord) > 2e-3  # a pad, its axis across it
+    assert chord @ finger > np.cos(np.radians(20)) * np.linalg.norm(chord) * np.linalg.norm(finger)
+    assert "bone_axis" in brush.shots
+
+
 def test_the_overlay_follows_the_pose_and_in_edit_mode_the_cage(brush):
     color = brush.results["color"]
     posed, cage = brush.results["posed"], brush.results["cage"]

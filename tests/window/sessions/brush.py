@@ -98,9 +98,9 @@ def steps(s):
 
     # The stroke's patch is made off the main thread: Blender keeps drawing and taking input meanwhile,
     # the header says what is being made, and Esc stops it with nothing changed.
-    ops = addon("operators.paint")
-    originals = ops.farthest_pair_axis, ops.medial_axis
-    ops.farthest_pair_axis, ops.medial_axis = (slowed(f) for f in originals)
+    ops, axes = addon("operators.paint"), addon("operators.common")  # common lays the default axis
+    originals = axes.farthest_pair_axis, axes.medial_axis
+    axes.farthest_pair_axis, axes.medial_axis = (slowed(f) for f in originals)
     yield from s.drag(path)
     yield from s.shot("working", settle=0.3)
     yield from s.key("Escape", settle=0.3)
@@ -112,7 +112,7 @@ def steps(s):
     s.record("while_working", len(hand.contact_edit.patches))
     s.record("wait", (yield from until(lambda: patches(hand))))
     s.record("last_operator", bpy.context.window_manager.operators[-1].bl_idname)
-    ops.farthest_pair_axis, ops.medial_axis = originals
+    axes.farthest_pair_axis, axes.medial_axis = originals
     s.record("painted", patches(hand))
     yield from s.shot("stroke")
 
@@ -169,4 +169,21 @@ def steps(s):
     yield from s.shot("edit_mode")
     with view.override():
         bpy.ops.object.mode_set(mode="OBJECT")
+
+    # A round pad (one click of the brush) with its axis laid along the bone: along the finger, where a
+    # round patch's farthest points lie anywhere around its rim (issue 37).
+    for bone in ("middle_2", "middle_3"):
+        armature.pose.bones[bone].rotation_euler = Euler((0.0, 0.0, 0.0))
+    settings.axis_method = "BONE"
+    count = len(hand.contact_edit.patches)
+    spot = path[len(path) // 4]
+    yield from s.move(*spot)
+    yield from s.key("ctrl+shift+p")
+    yield from s.drag([spot, spot])
+    yield from until(lambda: len(hand.contact_edit.patches) > count)
+    round_pad = hand.contact_edit.patches[-1].name
+    points, axis = patch_points(hand, round_pad, shown_vertices(hand))
+    bone = np.array(armature.matrix_world) @ np.array(armature.data.bones["middle_3"].matrix_local)
+    s.record("bone_axis", {"axis": axis.tolist(), "finger": bone[:3, 1].tolist(), "points": points.tolist()})
+    yield from s.shot("bone_axis")
     s.record("reports", s.reports())
