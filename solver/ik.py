@@ -468,8 +468,9 @@ class ContactIK:
         self._solids = []  # what the hand's vertices stay out of: (term, weight, signed distance)
         self._exact = []  # the same, exact at any depth (pressing's check), each followed as the skin moves
         if obstacle is not None:  # its exact distance, queried only where the skin may have come inside
-            self._solids.append(("table", self.weights.t, NarrowBand(obstacle, np.inf).evaluate))
-            self._exact.append(NarrowBand(obstacle, np.inf).evaluate)
+            table = NarrowBand(obstacle, np.inf).evaluate  # exact at any depth: the penalty and the check
+            self._solids.append(("table", self.weights.t, table))
+            self._exact.append(table)
         if keep_out is not None:
             inside = NarrowBand(keep_out, KEEP_OUT_BAND * self.unit).evaluate
             self._solids.append(("penetration", self.weights.o, inside))
